@@ -1,0 +1,138 @@
+"""``sb-encode``: the right camera's job -- keep a sparse set of pixels, write a ``.sbs`` file.
+
+The command is a thin layer over :func:`stereobudget.container.encode_file`.  It must
+start fast on the camera: nothing here (nor in what ``--raw`` reaches) imports numba or
+OpenCV; OpenCV is loaded only when an encoded image (PNG, JPEG...) has to be decoded.
+"""
+
+from __future__ import annotations
+
+import logging
+
+import click
+
+from stereobudget.errors import OptionError
+
+from . import _common as common
+
+log = logging.getLogger("stereobudget")
+
+_RAW_PIX_FMTS = ("gray8", "rgb24", "bgr24", "gray16le")   # = imageio.RAW_PIXEL_FORMATS
+_U16 = click.IntRange(1, 65535)
+
+
+def _parse_offset(text: str) -> tuple[int, int]:
+    parts = text.replace(" ", "").split(",")
+    if len(parts) != 2 or not all(p.isdigit() for p in parts):
+        raise OptionError(f"--offset must look like X,Y (two non-negative integers), got {text!r}")
+    return int(parts[0]), int(parts[1])
+
+
+def build_pattern(*, pattern: str, stride: int, stride_x: int | None, stride_y: int | None,
+                  offset: str | None, seed: int | None):
+    """The :class:`~stereobudget.sampling.SamplingPattern` described by sb-encode's options.
+
+    Raises
+    ------
+    OptionError
+        Offset outside the stride, an offset with ``jitter`` or a seed with ``grid``.
+    """
+    from stereobudget.sampling import SamplingPattern
+
+    sx = stride if stride_x is None else stride_x
+    sy = stride if stride_y is None else stride_y
+    ox, oy = _parse_offset(offset) if offset is not None else (0, 0)
+    if pattern == "jitter" and offset is not None:
+        raise OptionError("--offset applies to --pattern grid only (jitter picks one pixel per cell)")
+    if pattern == "grid" and seed is not None:
+        raise OptionError("--seed applies to --pattern jitter only")
+    if not (ox < sx and oy < sy):
+        raise OptionError(f"--offset {ox},{oy} must be smaller than the stride {sx}x{sy}")
+    return SamplingPattern(kind=pattern, stride_x=sx, stride_y=sy, offset_x=ox, offset_y=oy,
+                           seed=seed or 0)
+
+
+def _show_info(path, *, verify: bool) -> None:
+    from stereobudget.container import probe
+    common.emit_json(probe(path, verify_payload=verify))
+
+
+@click.command(context_settings={"help_option_names": ["-h", "--help"]})
+@click.argument("image", required=False, metavar="RIGHT_IMAGE")
+@click.option("-o", "--output", metavar="OUT.sbs", help="Sample file to write ('-' = stdout).")
+@click.option("--stride", type=_U16, default=5, show_default=True,
+              help="Grid spacing in pixels, both directions (epsilon ~ 1/stride^2).")
+@click.option("--stride-x", type=_U16, default=None, help="Horizontal spacing (overrides --stride).")
+@click.option("--stride-y", type=_U16, default=None, help="Vertical spacing (overrides --stride).")
+@click.option("--offset", metavar="X,Y", default=None,
+              help="Position of the first grid sample, 0 <= offset < stride.  [default: 0,0]")
+@click.option("--pattern", type=click.Choice(["grid", "jitter"]), default="grid", show_default=True,
+              help="grid: I2[oy::sy, ox::sx]; jitter: one pseudo-random pixel per cell.")
+@click.option("--seed", type=click.IntRange(0, 2 ** 64 - 1), default=None,
+              help="Seed of the jitter pattern (0..2^64-1).  [default: 0]")
+@click.option("--raw", "raw_size", metavar="WxH", default=None,
+              help="Input is one headerless frame of this size (needs --pix-fmt).")
+@click.option("--pix-fmt", type=click.Choice(_RAW_PIX_FMTS), default=None,
+              help="Pixel format of a --raw frame.")
+@click.option("--info", "info_file", metavar="FILE.sbs", default=None,
+              help="Validate a sample file and print its header as one JSON line; no encoding.")
+@click.option("--header-only", is_flag=True,
+              help="With --info: check the header and file size but not the payload checksum.")
+@common.overwrite_option
+@common.json_option
+@common.verbosity_options
+@common.version_option
+@common.handle_errors
+def encode_command(image, output, stride, stride_x, stride_y, offset, pattern, seed, raw_size,
+                   pix_fmt, info_file, header_only, overwrite, as_json):
+    """Sample RIGHT_IMAGE ('-' = stdin) on a sparse grid and write the .sbs sample file.
+
+    \b
+    Examples:
+      sb-encode right.png -o right.sbs                 # 5x5 grid, epsilon = 4 %
+      sb-encode right.png -o right.sbs --stride 4      # epsilon = 6.25 %
+      sb-encode - -o - < right.png > right.sbs         # stdin to stdout
+      sb-encode frame.raw --raw 640x480 --pix-fmt bgr24 -o frame.sbs
+      sb-encode --info right.sbs                       # header as JSON
+    """
+    if info_file is not None:
+        if image is not None or output is not None:
+            raise OptionError("--info takes only the sample file; drop RIGHT_IMAGE and -o")
+        _show_info(info_file, verify=not header_only)
+        return
+    if header_only:
+        raise OptionError("--header-only only applies to --info")
+    if image is None:
+        raise OptionError("missing RIGHT_IMAGE (use '-' for standard input); see --help")
+    if output is None:
+        raise OptionError("missing -o/--output (use '-o -' for standard output)")
+    if (raw_size is None) != (pix_fmt is None):
+        raise OptionError("--raw WxH and --pix-fmt must be given together")
+    if as_json and output == "-":
+        raise OptionError("--json cannot be combined with '-o -' (stdout carries the sample file)")
+    size = None
+    if raw_size is not None:
+        from stereobudget.imageio import parse_raw_size
+        try:
+            size = parse_raw_size(raw_size)
+        except ValueError as exc:
+            raise OptionError(f"--raw: {exc}") from None
+    sampling = build_pattern(pattern=pattern, stride=stride, stride_x=stride_x, stride_y=stride_y,
+                             offset=offset, seed=seed)
+
+    from stereobudget.container import encode_file
+    report = encode_file(image, output, pattern=sampling, raw_size=size, pix_fmt=pix_fmt,
+                         overwrite=overwrite)
+    log.info("%s -> %s: %dx%d %s %s, %s %dx%d, %d samples, epsilon %.2f %%, %d bytes "
+             "(header %d + payload %d)", report.source, report.output, report.width, report.height,
+             report.channel_order, report.dtype, report.pattern, report.stride_x, report.stride_y,
+             report.sample_count, 100 * report.epsilon, report.file_size, report.header_bytes,
+             report.payload_bytes)
+    if as_json:
+        common.emit_json(report.as_dict())
+
+
+main = common.make_main(encode_command, "sb-encode")
+
+if __name__ == "__main__":   # python -m stereobudget.cli.encode
+    main()

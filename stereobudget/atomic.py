@@ -1,0 +1,199 @@
+"""Atomic output files, ``-`` for stdin/stdout, and the output-path sanity checks.
+
+Every output of stereobudget is either complete or absent: data goes to a temporary
+file in the target directory (same filesystem, so the final rename is atomic) and is
+moved into place with :func:`os.replace` only once fully written.  Any exception,
+including ``KeyboardInterrupt`` (and SIGTERM, which the CLI turns into one), removes
+the temporary file.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import os
+import sys
+import tempfile
+from pathlib import Path
+from typing import BinaryIO, Iterable, Iterator
+
+from .errors import OutputError, StereoBudgetError
+
+STDIO = "-"
+
+
+def _is_stdio(path) -> bool:
+    return str(path) == STDIO
+
+
+def _current_umask() -> int:
+    # os.umask can only be read by setting it; restore immediately.
+    mask = os.umask(0)
+    os.umask(mask)
+    return mask
+
+
+@contextlib.contextmanager
+def atomic_write(path, *, overwrite: bool = False, fsync: bool = True) -> Iterator[BinaryIO]:
+    """Open ``path`` for binary writing so that it appears only when complete.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        Final file name (not ``-``; use :func:`write_output_bytes` for stdout).
+    overwrite : bool
+        Replace an existing file.  Without it an existing ``path`` raises
+        :class:`~stereobudget.errors.OutputError`, also when it appears while we write.
+    fsync : bool
+        Flush the data to disk before the rename, so a crash cannot leave an empty file.
+
+    Yields
+    ------
+    file object
+        The temporary file, opened ``"wb"``.
+
+    Raises
+    ------
+    OutputError
+        The directory does not exist or is not writable, or ``path`` exists.
+    """
+    target = Path(path)
+    directory = target.parent
+    if not overwrite and target.exists():
+        raise OutputError("output exists (pass --overwrite to replace it)", path=str(path))
+    try:
+        fd, tmp_name = tempfile.mkstemp(prefix=f".{target.name}.", suffix=".tmp", dir=directory)
+    except FileNotFoundError:
+        raise OutputError(f"directory {str(directory)!r} does not exist", path=str(path)) from None
+    except OSError as exc:
+        raise OutputError(f"cannot create a file in {str(directory)!r}: {exc.strerror}",
+                          path=str(path)) from None
+    tmp = Path(tmp_name)
+    try:
+        # mkstemp creates 0600; give the result the permissions a plain open() would.
+        os.fchmod(fd, 0o666 & ~_current_umask())
+        with os.fdopen(fd, "wb") as handle:
+            yield handle
+            handle.flush()
+            if fsync:
+                os.fsync(handle.fileno())
+        _move_into_place(tmp, target, overwrite=overwrite)
+    except BaseException:
+        with contextlib.suppress(FileNotFoundError):
+            tmp.unlink()
+        raise
+
+
+def _move_into_place(tmp: Path, target: Path, *, overwrite: bool) -> None:
+    if overwrite:
+        os.replace(tmp, target)
+        return
+    # A hard link fails if the target exists, so "no clobber" holds even against a
+    # file that appeared while we were writing.
+    try:
+        os.link(tmp, target)
+    except FileExistsError:
+        raise OutputError("output exists (pass --overwrite to replace it)", path=str(target)) from None
+    except OSError:
+        # Filesystem without hard links (FAT, some network mounts): check, then rename.
+        if target.exists():
+            raise OutputError("output exists (pass --overwrite to replace it)",
+                              path=str(target)) from None
+        os.replace(tmp, target)
+        return
+    tmp.unlink()
+
+
+def write_output_bytes(path, data: bytes, *, overwrite: bool = False, fsync: bool = True) -> None:
+    """Write ``data`` to ``path`` atomically, or to standard output when ``path`` is ``-``.
+
+    Raises
+    ------
+    OutputError
+        ``path`` exists without ``overwrite``, cannot be created, or is ``-`` while
+        standard output is a terminal (binary data would garble it).
+    """
+    if _is_stdio(path):
+        stdout = sys.stdout.buffer
+        if stdout.isatty():
+            raise OutputError("refusing to write binary data to a terminal; redirect it or use -o FILE",
+                              path="<stdout>")
+        stdout.write(data)
+        stdout.flush()
+        return
+    try:
+        with atomic_write(path, overwrite=overwrite, fsync=fsync) as handle:
+            handle.write(data)
+    except OSError as exc:
+        raise OutputError(f"cannot write: {exc.strerror or exc}", path=str(path)) from None
+
+
+def read_input_bytes(path, *, error: type[StereoBudgetError]) -> bytes:
+    """All bytes of the file ``path``, or of standard input when ``path`` is ``-``.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        Input file or ``-``.
+    error : type
+        The :class:`~stereobudget.errors.StereoBudgetError` subclass raised when the file
+        cannot be read (missing, a directory, no permission).
+    """
+    if _is_stdio(path):
+        return sys.stdin.buffer.read()
+    try:
+        return Path(path).read_bytes()
+    except FileNotFoundError:
+        raise error("no such file", path=str(path)) from None
+    except IsADirectoryError:
+        raise error("is a directory, not a file", path=str(path)) from None
+    except OSError as exc:
+        raise error(f"cannot read: {exc.strerror or exc}", path=str(path)) from None
+
+
+def display_name(path) -> str:
+    """The name used for ``path`` in messages (``<stdin>`` for ``-``)."""
+    return "<stdin>" if _is_stdio(path) else str(path)
+
+
+def _same_file(a: Path, b: Path) -> bool:
+    try:
+        return os.path.samefile(a, b)
+    except OSError:
+        return a.resolve() == b.resolve()
+
+
+def check_output_path(output, inputs: Iterable, overwrite: bool) -> None:
+    """Refuse an output that would destroy an input or silently replace a file.
+
+    Call before reading any input, so a bad output path fails fast.
+
+    Parameters
+    ----------
+    output : str or os.PathLike
+        Output path, or ``-`` for standard output (always accepted).
+    inputs : iterable of str or os.PathLike
+        Input paths of the same job (``-`` entries are ignored).
+    overwrite : bool
+        Whether an existing output may be replaced.
+
+    Raises
+    ------
+    OutputError
+        ``output`` is one of ``inputs`` (even via another name), is a directory, its
+        directory does not exist, or it exists and ``overwrite`` is false.
+    """
+    if _is_stdio(output):
+        return
+    out = Path(output)
+    for item in inputs:
+        if _is_stdio(item):
+            continue
+        if _same_file(out, Path(item)):
+            raise OutputError(f"output is the same file as the input {str(item)!r}; "
+                              "choose another output name", path=str(output))
+    if out.is_dir():
+        raise OutputError("output is a directory; give a file name", path=str(output))
+    if not out.parent.is_dir():
+        raise OutputError(f"directory {str(out.parent)!r} does not exist", path=str(output))
+    if out.exists() and not overwrite:
+        raise OutputError("output exists (pass --overwrite to replace it)", path=str(output))
