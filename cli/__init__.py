@@ -1,0 +1,1 @@
+"""Click commands ``sb-encode`` and ``sb-decode`` (installed as ``stereobudget.cli``)."""

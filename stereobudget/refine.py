@@ -1,0 +1,124 @@
+"""Yang's left-right consistency check and non-local disparity refinement.
+
+Used whenever the host has a dense (possibly interpolated) right image: full-pair
+decoding (stride 1), Downsample and Hybrid.  With only sparse samples there is no right
+view to check against, so Sparse skips it (as the paper does).
+
+Steps (Yang, CVPR 2012, Sec. 2.3):
+
+1. disparity of both views from their aggregated cost volumes;
+2. a left pixel is *stable* when ``|D_L(x) - D_R(x - D_L(x))| <= tolerance``;
+3. new cost ``C(p, d) = |d - D_L(p)|`` for stable pixels, ``0`` for unstable ones;
+4. aggregate it on the left tree and take the winner again: unstable pixels inherit the
+   disparity of similar stable pixels.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import njit, prange
+
+from . import tree as _tree
+from .cost import full_dsi
+
+
+@njit(cache=True, parallel=True)
+def right_view_cost(left_cost, min_disp):
+    """Cost volume of the right view from the left one: ``C_R(x, d) = C_L(x + d, d)``.
+
+    Parameters
+    ----------
+    left_cost : ndarray, float32 (H, W, D)
+    min_disp : int
+
+    Returns
+    -------
+    ndarray, float32 (H, W, D)
+        Right pixels whose partner ``x + d`` lies outside the left image take the cost of
+        the last column (border replication, as for the left view).
+    """
+    h, w, nd = left_cost.shape
+    out = np.empty_like(left_cost)
+    for y in prange(h):
+        for x in range(w):
+            for i in range(nd):
+                xl = x + min_disp + i
+                if xl >= w:
+                    xl = w - 1
+                elif xl < 0:
+                    xl = 0
+                out[y, x, i] = left_cost[y, xl, i]
+    return out
+
+
+@njit(cache=True, parallel=True)
+def left_right_stable(disp_left, disp_right, tolerance):
+    """Boolean (H, W): left pixels whose disparity the right view confirms within ``tolerance``."""
+    h, w = disp_left.shape
+    out = np.zeros((h, w), dtype=np.bool_)
+    for y in prange(h):
+        for x in range(w):
+            d = disp_left[y, x]
+            xr = int(np.floor(x - d + 0.5))
+            if 0 <= xr < w:
+                out[y, x] = abs(d - disp_right[y, xr]) <= tolerance
+    return out
+
+
+@njit(cache=True, parallel=True)
+def _refinement_cost(disp, stable, min_disp, num_disp):
+    h, w = disp.shape
+    out = np.zeros((h, w, num_disp), dtype=np.float32)
+    for y in prange(h):
+        for x in range(w):
+            if stable[y, x]:
+                d = disp[y, x]
+                for i in range(num_disp):
+                    out[y, x, i] = abs(min_disp + i - d)
+    return out
+
+
+def nonlocal_refinement(disp: np.ndarray, stable: np.ndarray, tree, *, min_disp: int, num_disp: int):
+    """Propagate stable disparities to unstable pixels along the tree (Yang's refinement).
+
+    Parameters
+    ----------
+    disp : ndarray, float32 (H, W)
+    stable : ndarray, bool (H, W)
+    tree : stereobudget.tree.MinimumSpanningTree
+        Tree of the left image.
+
+    Returns
+    -------
+    ndarray, float32 (H, W)
+    """
+    from .decoders import winner_take_all
+    cost = _refinement_cost(disp.astype(np.float32), stable, int(min_disp), int(num_disp))
+    cost = _tree.aggregate(cost, tree, out=cost)
+    return winner_take_all(cost, int(min_disp))
+
+
+def full_pair_disparity(left_f, right_f, *, tree, min_disp, num_disp, params, timer):
+    """Standard full-pair stereo with Yang's non-local method (the "100 % of I2" reference).
+
+    ``left_f``/``right_f`` are float32 (H, W, C) images in 8-bit units.
+    """
+    from .decoders import winner_take_all, median_filter_disparity
+    with timer("cost"):
+        cost = full_dsi(left_f, right_f, min_disp=min_disp, num_disp=num_disp,
+                        truncation=params.truncation, grad_weight=params.grad_weight)
+    with timer("tree"):
+        right_tree = _tree.build_tree(right_f, sigma=params.tree_sigma, median_size=params.tree_median)
+    with timer("aggregate"):
+        cost_r = right_view_cost(cost, int(min_disp))
+        cost = _tree.aggregate(cost, tree, out=cost)
+        cost_r = _tree.aggregate(cost_r, right_tree, out=cost_r)
+    with timer("wta"):
+        disp_l = winner_take_all(cost, int(min_disp))
+        disp_r = winner_take_all(cost_r, int(min_disp))
+    del cost, cost_r
+    with timer("refine"):
+        stable = left_right_stable(disp_l, disp_r, np.float32(1.0))
+        disp = nonlocal_refinement(disp_l, stable, tree, min_disp=min_disp, num_disp=num_disp)
+        disp = median_filter_disparity(disp, params.median_size)
+    return disp
