@@ -1,0 +1,518 @@
+"""Non-local cost aggregation on a minimum spanning tree (Q. Yang, CVPR 2012).
+
+The guide image (the left view ``I1``) is seen as a 4-connected grid graph whose edge
+weight is the largest absolute channel difference between two neighbours.  Its minimum
+spanning tree (MST) keeps, for every pixel, the "cheapest" path to every other pixel, and
+the similarity of two pixels is the product of ``exp(-w / sigma)`` over the edges of that
+unique path.  The aggregated cost of pixel ``p`` is ``sum_q S(p, q) C(q)`` over *all*
+pixels ``q``, which two linear passes over the tree compute exactly:
+
+* leaf to root: ``C_up(v) = C(v) + sum_children S(v, c) C_up(c)``;
+* root to leaf: ``C_A(v) = S(p, v) C_A(p) + (1 - S(p, v)^2) C_up(v)``.
+
+Both passes run on all disparities of a node at once, so the cost is ``O(N D)``.
+
+Conventions: nodes are row-major pixel indices ``row * width + col``; cost volumes are
+float32 ``(H, W, D)`` with the disparity axis contiguous.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import cv2
+import numba
+import numpy as np
+from numba import njit, prange
+
+from .errors import ImageReadError, OptionError
+
+__all__ = ["MinimumSpanningTree", "build_tree", "aggregate"]
+
+# Scale of a uint16 difference to 8-bit units: 65535 / 257 == 255.
+_UINT16_TO_8BIT = 1.0 / 257.0
+
+# Tree-edge bits of a node in the 4-connected grid.
+_RIGHT, _DOWN, _LEFT, _UP = 1, 2, 4, 8
+
+# Below this many pixels `aggregate` stays on one thread: waking a second one costs more.
+_PARALLEL_MIN_NODES = 16384
+
+
+@dataclass(frozen=True)
+class MinimumSpanningTree:
+    """A spanning tree of the pixel grid, stored as a rooted tree in topological order.
+
+    Attributes
+    ----------
+    order : numpy.ndarray
+        int32 ``(N,)``: node indices (row-major pixel index) in depth-first pre-order
+        from the root; ``order[0]`` is the root.  Every node appears after its parent,
+        and every subtree is a contiguous run of ``order``.
+    parent : numpy.ndarray
+        int32 ``(N,)``: parent node of each node; ``-1`` for the root.
+    weight : numpy.ndarray
+        float32 ``(N,)``: similarity ``S(node, parent) = exp(-w / sigma)`` of the edge to
+        the parent, in ``[0, 1]``; ``0`` for the root.
+    height, width : int
+        Grid size; ``N = height * width``.
+    """
+
+    order: np.ndarray
+    parent: np.ndarray
+    weight: np.ndarray
+    height: int
+    width: int
+
+    @property
+    def size(self) -> int:
+        """Number of nodes ``N = height * width``."""
+        return self.height * self.width
+
+
+# --------------------------------------------------------------------------------------
+# Guide preparation
+
+
+def _as_channels_last(guide: np.ndarray) -> np.ndarray:
+    """Validate the guide and return it as ``(H, W, C)`` uint8, uint16 or float32."""
+    if not isinstance(guide, np.ndarray):
+        raise ImageReadError(f"guide must be a numpy array, got {type(guide).__name__}")
+    if guide.ndim == 2:
+        guide = guide[:, :, None]
+    if guide.ndim != 3 or guide.shape[0] < 1 or guide.shape[1] < 1 or guide.shape[2] < 1:
+        raise ImageReadError(f"guide must be a non-empty (H, W) or (H, W, C) image, got shape {guide.shape}")
+    if guide.dtype in (np.uint8, np.uint16):
+        return guide
+    if guide.dtype.kind == "f":
+        guide = guide.astype(np.float32, copy=False)
+        if not np.all(np.isfinite(guide)):
+            raise ImageReadError("guide contains NaN or infinite values")
+        return guide
+    raise ImageReadError(f"guide dtype {guide.dtype} is not supported (use uint8, uint16 or float)")
+
+
+def _median_filtered(guide: np.ndarray, median_size: int) -> np.ndarray:
+    """Median-filter each channel of an ``(H, W, C)`` guide, keeping its dtype if possible.
+
+    OpenCV filters uint16/float32 only with apertures 3 and 5; larger apertures on those
+    dtypes work on the guide rounded to 8-bit units (the unit the edge weights use anyway).
+    """
+    if median_size in (0, 1):
+        return guide
+    if guide.dtype != np.uint8 and median_size > 5:
+        scale = _UINT16_TO_8BIT if guide.dtype == np.uint16 else 1.0
+        guide = np.clip(np.rint(guide.astype(np.float32) * np.float32(scale)), 0, 255).astype(np.uint8)
+    channels = guide.shape[2]
+    if channels in (1, 3, 4):
+        # medianBlur takes 1, 3 or 4 interleaved channels; a 2-D view keeps the (H, W, 1) case legal.
+        source = np.ascontiguousarray(guide[:, :, 0] if channels == 1 else guide)
+        return cv2.medianBlur(source, median_size).reshape(guide.shape)
+    filtered = np.empty_like(guide)
+    for c in range(channels):
+        filtered[:, :, c] = cv2.medianBlur(np.ascontiguousarray(guide[:, :, c]), median_size)
+    return filtered
+
+
+# --------------------------------------------------------------------------------------
+# numba kernels
+
+
+@njit(cache=True)
+def _edge_keys(image, keys):
+    """Max absolute channel difference of each grid edge, in the guide's own units.
+
+    Edge ``2 * p`` joins pixel ``p`` to its right neighbour, edge ``2 * p + 1`` to the
+    pixel below.  Edges leaving the grid keep key 0 and are never used.
+    """
+    height, width, channels = image.shape
+    for r in range(height):
+        for c in range(width):
+            p = r * width + c
+            if c + 1 < width:
+                largest = 0.0
+                for k in range(channels):
+                    diff = abs(float(image[r, c, k]) - float(image[r, c + 1, k]))
+                    if diff > largest:
+                        largest = diff
+                keys[2 * p] = largest
+            else:
+                keys[2 * p] = 0
+            if r + 1 < height:
+                largest = 0.0
+                for k in range(channels):
+                    diff = abs(float(image[r, c, k]) - float(image[r + 1, c, k]))
+                    if diff > largest:
+                        largest = diff
+                keys[2 * p + 1] = largest
+            else:
+                keys[2 * p + 1] = 0
+
+
+@njit(cache=True)
+def _counting_sorted_edges(keys, height, width, key_count):
+    """Grid edge ids sorted by integer key; stable, so ties keep edge-id order."""
+    counts = np.zeros(key_count + 1, dtype=np.int64)
+    for p in range(height * width):
+        c = p % width
+        if c + 1 < width:
+            counts[keys[2 * p] + 1] += 1
+        if p + width < height * width:
+            counts[keys[2 * p + 1] + 1] += 1
+    for k in range(key_count):
+        counts[k + 1] += counts[k]
+    edge_count = height * (width - 1) + (height - 1) * width
+    sorted_edges = np.empty(edge_count, dtype=np.int32)
+    for p in range(height * width):
+        c = p % width
+        if c + 1 < width:
+            key = keys[2 * p]
+            sorted_edges[counts[key]] = 2 * p
+            counts[key] += 1
+        if p + width < height * width:
+            key = keys[2 * p + 1]
+            sorted_edges[counts[key]] = 2 * p + 1
+            counts[key] += 1
+    return sorted_edges
+
+
+@njit(cache=True)
+def _find_root(link, node):
+    # Path halving keeps the trees flat without recursion.
+    while link[node] != node:
+        link[node] = link[link[node]]
+        node = link[node]
+    return node
+
+
+@njit(cache=True)
+def _kruskal_tree_bits(sorted_edges, height, width):
+    """Kruskal on pre-sorted grid edges; returns per-node bits of the kept tree edges."""
+    node_count = height * width
+    link = np.arange(node_count, dtype=np.int32)
+    rank = np.zeros(node_count, dtype=np.uint8)
+    bits = np.zeros(node_count, dtype=np.uint8)
+    kept = 0
+    for e in sorted_edges:
+        if kept == node_count - 1:
+            break
+        p = e >> 1
+        down = e & 1
+        q = p + width if down else p + 1
+        root_p = _find_root(link, p)
+        root_q = _find_root(link, q)
+        if root_p == root_q:
+            continue
+        if rank[root_p] < rank[root_q]:
+            link[root_p] = root_q
+        elif rank[root_p] > rank[root_q]:
+            link[root_q] = root_p
+        else:
+            link[root_q] = root_p
+            rank[root_p] += 1
+        if down:
+            bits[p] |= 2  # _DOWN
+            bits[q] |= 8  # _UP
+        else:
+            bits[p] |= 1  # _RIGHT
+            bits[q] |= 4  # _LEFT
+        kept += 1
+    return bits
+
+
+@njit(cache=True)
+def _depth_first(bits, keys, key_scale, sigma, height, width, root):
+    """Root the tree: depth-first pre-order, parents and edge similarities exp(-w / sigma).
+
+    Pre-order (rather than breadth-first) makes a node's parent usually the node just
+    before it and keeps every subtree contiguous in ``order``, which is what lets
+    :func:`aggregate` stay in cache and split the walk between threads.
+    """
+    node_count = height * width
+    order = np.empty(node_count, dtype=np.int32)
+    parent = np.full(node_count, -1, dtype=np.int32)
+    weight = np.zeros(node_count, dtype=np.float32)
+    stack = np.empty(node_count, dtype=np.int32)
+    factor = -key_scale / sigma
+    stack[0] = root
+    top = 1
+    visited = 0
+    while top > 0:
+        top -= 1
+        p = stack[top]
+        order[visited] = p
+        visited += 1
+        b = bits[p]
+        for direction in range(4):
+            if not (b >> direction) & 1:
+                continue
+            if direction == 0:
+                q = p + 1
+                key = keys[2 * p]
+            elif direction == 1:
+                q = p + width
+                key = keys[2 * p + 1]
+            elif direction == 2:
+                q = p - 1
+                key = keys[2 * q]
+            else:
+                q = p - width
+                key = keys[2 * q + 1]
+            if q == parent[p]:
+                continue
+            parent[q] = p
+            weight[q] = np.exp(factor * float(key))
+            stack[top] = q
+            top += 1
+    return order, parent, weight, visited
+
+
+@njit(cache=True)
+def _upward_range(cost, order, parent, weight, out, ready, lo, hi):
+    """Leaf-to-root pass over order positions ``[lo, hi)``, each node pushing into its parent.
+
+    ``ready[v]`` says whether ``out[v]`` already holds ``cost[v]`` plus pushed children, so
+    the copy of ``cost`` is fused into the walk instead of being a separate pass.
+    """
+    disparities = cost.shape[1]
+    for k in range(hi - 1, lo - 1, -1):
+        v = order[k]
+        p = parent[v]
+        s = weight[v]
+        child = out[v]
+        if not ready[v]:  # a leaf: nothing was pushed into it
+            source = cost[v]
+            for d in range(disparities):
+                child[d] = source[d]
+            ready[v] = 1
+        target = out[p]
+        if ready[p]:
+            for d in range(disparities):
+                target[d] += s * child[d]
+        else:
+            source = cost[p]
+            for d in range(disparities):
+                target[d] = source[d] + s * child[d]
+            ready[p] = 1
+
+
+@njit(cache=True)
+def _make_ready(cost, out, ready, v):
+    if not ready[v]:
+        source = cost[v]
+        target = out[v]
+        for d in range(cost.shape[1]):
+            target[d] = source[d]
+        ready[v] = 1
+
+
+@njit(cache=True)
+def _downward_range(order, parent, weight, out, lo, hi):
+    """Root-to-leaf pass over order positions ``[lo, hi)``; parents must be final already."""
+    disparities = out.shape[1]
+    for k in range(lo, hi):
+        v = order[k]
+        s = weight[v]
+        keep = np.float32(1.0) - s * s
+        above = out[parent[v]]
+        row = out[v]
+        for d in range(disparities):
+            row[d] = s * above[d] + keep * row[d]
+
+
+@njit(cache=True)
+def _aggregate_serial(cost, order, parent, weight, out):
+    """Both passes on one thread; ``cost``/``out`` are ``(N, D)`` float32, may alias."""
+    node_count = order.shape[0]
+    ready = np.zeros(node_count, dtype=np.uint8)
+    _upward_range(cost, order, parent, weight, out, ready, 1, node_count)
+    _make_ready(cost, out, ready, order[0])
+    _downward_range(order, parent, weight, out, 1, node_count)
+
+
+@njit(cache=True)
+def _balanced_subtree(order, parent):
+    """Order position of the non-root node whose subtree is closest to half the tree."""
+    node_count = order.shape[0]
+    size = np.ones(node_count, dtype=np.int32)
+    for k in range(node_count - 1, 0, -1):
+        v = order[k]
+        size[parent[v]] += size[v]
+    best = 1
+    best_gap = node_count
+    for k in range(1, node_count):
+        gap = abs(2 * size[order[k]] - node_count)
+        if gap < best_gap:
+            best_gap = gap
+            best = k
+    return best, size[order[best]]
+
+
+@njit(cache=True, parallel=True)
+def _aggregate_two_threads(cost, order, parent, weight, out):
+    """Both passes with the tree cut into a subtree A and the rest B, one thread each.
+
+    In pre-order the subtree of the node at position ``a0`` is the contiguous range
+    ``[a0, a1)``.  Upward, A and B are summed independently, then A's total is carried up
+    the path to the root.  Downward, the final aggregate of A's parent is computed along
+    that path first, so A and B can again run independently.  Threads never write the
+    same row.
+    """
+    node_count, disparities = cost.shape
+    a0, subtree_size = _balanced_subtree(order, parent)
+    a1 = a0 + subtree_size
+    ready = np.zeros(node_count, dtype=np.uint8)
+    for part in prange(2):
+        if part == 0:
+            _upward_range(cost, order, parent, weight, out, ready, a0 + 1, a1)
+            _make_ready(cost, out, ready, order[a0])
+        else:
+            _upward_range(cost, order, parent, weight, out, ready, a1, node_count)
+            _upward_range(cost, order, parent, weight, out, ready, 1, a0)
+            _make_ready(cost, out, ready, order[0])
+
+    # Carry A's upward sum into every ancestor, attenuated along the path.
+    top = order[a0]
+    total = out[top]
+    path_length = 0
+    factor = np.float32(1.0)
+    node = top
+    while parent[node] >= 0:
+        factor *= weight[node]
+        node = parent[node]
+        path_length += 1
+        row = out[node]
+        for d in range(disparities):
+            row[d] += factor * total[d]
+    # Final aggregate of A's parent, walking the path down from the root.
+    path = np.empty(path_length, dtype=np.int32)
+    node = top
+    for i in range(path_length):
+        node = parent[node]
+        path[i] = node
+    above = out[path[path_length - 1]].copy()  # the root: its upward sum is final
+    for i in range(path_length - 2, -1, -1):
+        s = weight[path[i]]
+        keep = np.float32(1.0) - s * s
+        row = out[path[i]]
+        for d in range(disparities):
+            above[d] = s * above[d] + keep * row[d]
+
+    for part in prange(2):
+        if part == 0:
+            top_similarity = weight[top]
+            top_keep = np.float32(1.0) - top_similarity * top_similarity
+            for d in range(disparities):
+                total[d] = top_similarity * above[d] + top_keep * total[d]
+            _downward_range(order, parent, weight, out, a0 + 1, a1)
+        else:
+            _downward_range(order, parent, weight, out, 1, a0)
+            _downward_range(order, parent, weight, out, a1, node_count)
+
+
+# --------------------------------------------------------------------------------------
+# Public API
+
+
+def build_tree(guide: np.ndarray, *, sigma: float = 0.1 * 255, median_size: int = 3) -> MinimumSpanningTree:
+    """Minimum spanning tree of the guide's 4-connected pixel grid, rooted at pixel 0.
+
+    Parameters
+    ----------
+    guide : numpy.ndarray
+        ``(H, W)`` or ``(H, W, C)`` image (usually ``I1``, RGB), uint8, uint16 or float.
+        Float guides are taken to be in 8-bit units (0..255), like uint8.
+    sigma : float, keyword-only
+        Similarity falloff in 8-bit units: an edge of weight ``w`` has similarity
+        ``exp(-w / sigma)``.  Default ``0.1 * 255`` (Yang's 0.1 on a 0..1 scale).
+    median_size : int, keyword-only
+        Aperture of the median filter applied to the guide before the edge weights are
+        taken (odd, >= 3); 0 or 1 disables it.
+
+    Returns
+    -------
+    MinimumSpanningTree
+        ``order``/``parent``/``weight`` of the tree rooted at pixel 0.
+
+    Notes
+    -----
+    Edge weight = largest absolute channel difference between the two neighbours, in
+    8-bit units (uint16 differences are divided by 257).  Kruskal's algorithm runs on the
+    edges in stable key order (counting sort for integer guides), so ties, including the
+    many zero-weight edges of flat regions, are broken deterministically by edge id.
+    """
+    if not np.isfinite(sigma) or sigma <= 0:
+        raise OptionError(f"sigma must be a positive number, got {sigma}")
+    if median_size not in (0, 1) and (median_size < 3 or median_size % 2 == 0):
+        raise OptionError(f"median_size must be 0, 1 or an odd number >= 3, got {median_size}")
+    image = _median_filtered(_as_channels_last(guide), int(median_size))
+    height, width = image.shape[:2]
+    node_count = height * width
+
+    if image.dtype == np.uint8 or image.dtype == np.uint16:
+        keys = np.empty(2 * node_count, dtype=np.int32)
+        _edge_keys(image, keys)
+        key_count = 256 if image.dtype == np.uint8 else 65536
+        sorted_edges = _counting_sorted_edges(keys, height, width, key_count)
+        key_scale = _UINT16_TO_8BIT if image.dtype == np.uint16 else 1.0
+    else:
+        keys = np.empty(2 * node_count, dtype=np.float32)
+        _edge_keys(image, keys)
+        edge_ids = np.arange(2 * node_count, dtype=np.int32).reshape(height, width, 2)
+        valid = np.ones((height, width, 2), dtype=bool)
+        valid[:, -1, 0] = False
+        valid[-1, :, 1] = False
+        edge_ids = edge_ids[valid]
+        sorted_edges = edge_ids[np.argsort(keys[edge_ids], kind="stable")].astype(np.int32)
+        key_scale = 1.0
+
+    bits = _kruskal_tree_bits(sorted_edges, height, width)
+    order, parent, weight, reached = _depth_first(bits, keys, key_scale, float(sigma), height, width, 0)
+    if reached != node_count:  # a spanning tree of a grid always reaches every pixel
+        raise AssertionError(f"spanning tree reached {reached} of {node_count} pixels")
+    return MinimumSpanningTree(order=order, parent=parent, weight=weight, height=height, width=width)
+
+
+def aggregate(cost: np.ndarray, tree: MinimumSpanningTree, *, out: np.ndarray | None = None) -> np.ndarray:
+    """Aggregate a cost volume over the tree: ``C_A(p) = sum_q S(p, q) C(q)``.
+
+    Parameters
+    ----------
+    cost : numpy.ndarray
+        float32 ``(H, W, D)`` matching cost, C-contiguous (a copy is made otherwise).
+    tree : MinimumSpanningTree
+        Tree from :func:`build_tree` on an ``(H, W)`` guide.
+    out : numpy.ndarray, optional, keyword-only
+        float32 C-contiguous ``(H, W, D)`` array to write into; may be ``cost`` itself
+        for in-place aggregation.
+
+    Returns
+    -------
+    numpy.ndarray
+        float32 ``(H, W, D)`` aggregated cost (``out`` if given).  ``S(p, q)`` is the
+        product of edge similarities on the tree path between ``p`` and ``q``
+        (``S(p, p) = 1``).  No memory beyond ``out`` is allocated.
+
+    Raises
+    ------
+    ValueError
+        If the volume or ``out`` does not fit the tree.
+    """
+    if cost.ndim != 3 or cost.shape[:2] != (tree.height, tree.width):
+        raise ValueError(f"cost volume shape {cost.shape} does not match the tree's {tree.height}x{tree.width} grid")
+    cost = np.ascontiguousarray(cost, dtype=np.float32)
+    if out is None:
+        out = np.empty_like(cost)
+    elif out.shape != cost.shape or out.dtype != np.float32 or not out.flags.c_contiguous:
+        raise ValueError(f"out must be a C-contiguous float32 array of shape {cost.shape}")
+    node_count = tree.height * tree.width
+    disparities = cost.shape[2]
+    if node_count == 0 or disparities == 0:
+        return out
+    flat_cost = cost.reshape(node_count, disparities)
+    flat_out = out.reshape(node_count, disparities)
+    if node_count < _PARALLEL_MIN_NODES or numba.get_num_threads() < 2:
+        _aggregate_serial(flat_cost, tree.order, tree.parent, tree.weight, flat_out)
+    else:
+        _aggregate_two_threads(flat_cost, tree.order, tree.parent, tree.weight, flat_out)
+    return out
