@@ -15,8 +15,9 @@ In memory a disparity map is always float32 ``(H, W)`` with NaN where invalid.  
 ``.npy``
     float32 with NaN.
 
-Every write is atomic: the bytes go to a temporary file in the target directory which is
-then renamed over the target, so a reader never sees a half-written map.
+Every write is atomic (:func:`stereobudget.atomic.write_output_bytes`): the bytes go to a
+temporary file in the target directory which is then moved over the target, so a reader
+never sees a half-written map.
 """
 
 from __future__ import annotations
@@ -25,12 +26,12 @@ import io
 import logging
 import os
 import re
-import tempfile
 from pathlib import Path
 
 import cv2
 import numpy as np
 
+from .atomic import write_output_bytes
 from .errors import ImageReadError, OutputError
 
 logger = logging.getLogger(__name__)
@@ -45,48 +46,6 @@ PNG_MAX_DISPARITY = 65535 / PNG_SCALE  # 255.996...
 
 def _extension(path) -> str:
     return Path(path).suffix.lower()
-
-
-def _atomic_write_bytes(path, payload: bytes, *, overwrite: bool) -> None:
-    """Write ``payload`` to ``path`` through a temporary file in the same directory + ``os.replace``.
-
-    The temporary file lives beside the target so the final rename never crosses a file
-    system (where it would stop being atomic).
-    """
-    # TODO(lead): merge with stereobudget.atomic once it exists.
-    target = Path(path)
-    if target.exists() and not overwrite:
-        raise OutputError("output exists (use overwrite to replace it)", path=str(target))
-    directory = target.parent if str(target.parent) else Path(".")
-    if not directory.is_dir():
-        raise OutputError("output directory does not exist", path=str(target))
-    try:
-        fd, tmp_name = tempfile.mkstemp(prefix=f".{target.name}.", suffix=".tmp", dir=directory)
-    except OSError as exc:
-        raise OutputError(f"cannot create a file in the output directory ({exc.strerror})",
-                          path=str(target)) from None
-    try:
-        with os.fdopen(fd, "wb") as handle:
-            handle.write(payload)
-            handle.flush()
-            os.fsync(handle.fileno())
-        # mkstemp creates 0600; give the result the permissions a plain open() would.
-        umask = os.umask(0)
-        os.umask(umask)
-        os.chmod(tmp_name, 0o666 & ~umask)
-        os.replace(tmp_name, target)
-    except OSError as exc:
-        try:
-            os.unlink(tmp_name)
-        except OSError:
-            pass
-        raise OutputError(f"cannot write output ({exc.strerror})", path=str(target)) from None
-    except BaseException:
-        try:
-            os.unlink(tmp_name)
-        except OSError:
-            pass
-        raise
 
 
 def _as_disparity_array(disparity) -> np.ndarray:
@@ -273,7 +232,7 @@ def write_disparity(path, disparity, *, overwrite: bool = False) -> None:
         payload = _encode_png16(d, str(path))
     else:
         payload = _encode_npy(d)
-    _atomic_write_bytes(path, payload, overwrite=overwrite)
+    write_output_bytes(path, payload, overwrite=overwrite)
 
 
 def read_disparity(path) -> np.ndarray:
@@ -364,4 +323,4 @@ def write_preview(path, disparity, *, min_disp: float | None, max_disp: float | 
     ok, buffer = cv2.imencode(".png", cv2.cvtColor(rgb, cv2.COLOR_RGB2BGR))
     if not ok:
         raise OutputError("OpenCV could not encode the preview PNG", path=str(path))
-    _atomic_write_bytes(path, buffer.tobytes(), overwrite=overwrite)
+    write_output_bytes(path, buffer.tobytes(), overwrite=overwrite)
