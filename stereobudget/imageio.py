@@ -15,6 +15,7 @@ from __future__ import annotations
 import io
 import logging
 import struct
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -43,6 +44,11 @@ def _png_size(data: bytes):
     if len(data) >= 24 and data[12:16] == b"IHDR":
         return struct.unpack(">II", data[16:24])
     return None
+
+
+def _png_is_gray(data: bytes) -> bool:
+    # IHDR colour type (byte 25): 0 = gray, 4 = gray + alpha.
+    return len(data) >= 26 and data[12:16] == b"IHDR" and data[:4] == b"\x89PNG" and data[25] in (0, 4)
 
 
 def _pnm_size(data: bytes):
@@ -145,7 +151,10 @@ def _decode_fallback(data: bytes):
             pass
     try:
         import imageio.v3 as iio
-        image = iio.imread(io.BytesIO(data), index=0)
+        with warnings.catch_warnings():
+            # imageio tries every plugin on unknown data; their deprecation notes are noise here.
+            warnings.simplefilter("ignore")
+            image = iio.imread(io.BytesIO(data), index=0)
     except Exception:
         return None
     return np.asarray(image)
@@ -237,6 +246,9 @@ def read_image(source, *, name: str | None = None):
             raise ImageReadError(problem, path=name)
     image = _decode_with_opencv(data)
     bgr = True
+    if image is not None and image.ndim == 3 and _png_is_gray(data):
+        # OpenCV expands gray+alpha PNGs to BGRA; keep them gray as stored.
+        image = image[:, :, [0, 3]] if image.shape[2] == 4 else image[:, :, 0]
     if image is None:
         image = _decode_fallback(data)
         bgr = False

@@ -1,0 +1,95 @@
+"""Atomic outputs, stdout/stdin as '-', and output-path checks."""
+
+from __future__ import annotations
+
+import io
+import os
+import sys
+
+import pytest
+
+from stereobudget.atomic import (atomic_write, check_output_path, read_input_bytes,
+                                 write_output_bytes)
+from stereobudget.errors import ImageReadError, OutputError
+
+
+def test_atomic_write_publishes_only_complete_files(tmp_path):
+    path = tmp_path / "out.bin"
+    with atomic_write(path) as handle:
+        handle.write(b"part one ")
+        assert not path.exists()             # nothing visible while writing
+        handle.write(b"part two")
+    assert path.read_bytes() == b"part one part two"
+    assert os.listdir(tmp_path) == ["out.bin"]
+
+
+@pytest.mark.parametrize("exc", [RuntimeError("boom"), KeyboardInterrupt()])
+def test_temporary_file_is_removed_on_any_exception(tmp_path, exc):
+    path = tmp_path / "out.bin"
+    path.write_bytes(b"old")
+    with pytest.raises(type(exc)):
+        with atomic_write(path, overwrite=True) as handle:
+            handle.write(b"new, half written")
+            raise exc
+    assert path.read_bytes() == b"old"
+    assert os.listdir(tmp_path) == ["out.bin"]
+
+
+def test_no_clobber_without_overwrite(tmp_path):
+    path = tmp_path / "out.bin"
+    path.write_bytes(b"keep me")
+    with pytest.raises(OutputError, match="exists"):
+        write_output_bytes(path, b"new")
+    # a file that appears while we write is not replaced either
+    with pytest.raises(OutputError, match="exists"):
+        with atomic_write(tmp_path / "late.bin") as handle:
+            handle.write(b"mine")
+            (tmp_path / "late.bin").write_bytes(b"theirs")
+    assert (tmp_path / "late.bin").read_bytes() == b"theirs"
+    assert path.read_bytes() == b"keep me"
+    assert sorted(os.listdir(tmp_path)) == ["late.bin", "out.bin"]
+    write_output_bytes(path, b"new", overwrite=True)
+    assert path.read_bytes() == b"new"
+
+
+def test_permissions_follow_the_umask(tmp_path):
+    old = os.umask(0o027)
+    try:
+        write_output_bytes(tmp_path / "f", b"x")
+    finally:
+        os.umask(old)
+    assert (tmp_path / "f").stat().st_mode & 0o777 == 0o640
+
+
+def test_missing_directory_is_an_output_error(tmp_path):
+    with pytest.raises(OutputError, match="does not exist"):
+        write_output_bytes(tmp_path / "no" / "f.bin", b"x")
+
+
+def test_dash_writes_to_stdout(capsysbinary):
+    write_output_bytes("-", b"\x00binary\x89")
+    assert capsysbinary.readouterr().out == b"\x00binary\x89"
+
+
+def test_dash_reads_stdin(monkeypatch):
+    monkeypatch.setattr(sys, "stdin", io.TextIOWrapper(io.BytesIO(b"\x89raw bytes")))
+    assert read_input_bytes("-", error=ImageReadError) == b"\x89raw bytes"
+
+
+def test_check_output_path(tmp_path):
+    src = tmp_path / "in.png"
+    src.write_bytes(b"x")
+    link = tmp_path / "link.png"
+    os.link(src, link)
+    for out in (src, link, tmp_path / "." / "in.png"):
+        with pytest.raises(OutputError, match="same file as the input"):
+            check_output_path(out, [src], overwrite=True)
+    with pytest.raises(OutputError, match="is a directory"):
+        check_output_path(tmp_path, [src], overwrite=True)
+    with pytest.raises(OutputError, match="does not exist"):
+        check_output_path(tmp_path / "nodir" / "o.sbs", [src], overwrite=False)
+    (tmp_path / "o.sbs").write_bytes(b"")
+    with pytest.raises(OutputError, match="--overwrite"):
+        check_output_path(tmp_path / "o.sbs", [src], overwrite=False)
+    check_output_path(tmp_path / "o.sbs", [src, "-"], overwrite=True)
+    check_output_path("-", [src], overwrite=False)
