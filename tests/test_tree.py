@@ -289,6 +289,9 @@ def test_large_grid_parallel_path_matches_serial():
     serial = np.empty_like(cost)
     tree_module._aggregate_serial(cost.reshape(-1, 20), tree.order, tree.parent, tree.weight, serial.reshape(-1, 20))
     np.testing.assert_allclose(aggregate(cost, tree), serial, rtol=1e-5)
+    in_place = cost.copy()
+    aggregate(in_place, tree, out=in_place)
+    np.testing.assert_allclose(in_place, serial, rtol=1e-5)
 
 
 def test_constant_cost_is_aggregated_proportionally_per_pixel():
