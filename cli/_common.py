@@ -109,18 +109,14 @@ def make_main(command: click.Command, name: str):
     return main
 
 
-def _configure_logging(verbose: int, quiet: int) -> None:
+def _install_log_handler(verbose: int, quiet: int) -> logging.Handler:
     level = max(logging.DEBUG, min(logging.CRITICAL, logging.WARNING - 10 * verbose + 10 * quiet))
     logger = logging.getLogger("stereobudget")
     logger.setLevel(level)
-    for handler in list(logger.handlers):
-        if getattr(handler, "_sb_cli", False):
-            logger.removeHandler(handler)
     handler = logging.StreamHandler(sys.stderr)
-    handler._sb_cli = True
     handler.setFormatter(logging.Formatter(f"{prog_name()}: %(message)s"))
     logger.addHandler(handler)
-    logger.propagate = False
+    return handler
 
 
 def verbosity_options(func):
@@ -132,8 +128,12 @@ def verbosity_options(func):
 
     @functools.wraps(func)
     def wrapper(*args, verbose: int = 0, quiet: int = 0, **kwargs):
-        _configure_logging(verbose, quiet)
-        return func(*args, **kwargs)
+        handler = _install_log_handler(verbose, quiet)
+        try:
+            return func(*args, **kwargs)
+        finally:
+            # In-process callers (tests, notebooks) must not keep a handler on a stale stream.
+            logging.getLogger("stereobudget").removeHandler(handler)
 
     wrapper = click.option("-q", "--quiet", count=True,
                            help="Less output on stderr (repeatable).")(wrapper)

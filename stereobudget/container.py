@@ -8,6 +8,7 @@ camera-side job for one image: read, sample, write atomically.
 
 from __future__ import annotations
 
+import logging
 import os
 import struct
 import zlib
@@ -21,6 +22,8 @@ from .errors import (CorruptHeaderError, CorruptPayloadError, NotASampleFileErro
                      TruncatedFileError, UnsupportedVersionError)
 from .limits import dimension_problem
 from .sampling import SamplingPattern, sample_count, sample_positions, grid_shape
+
+log = logging.getLogger("stereobudget")
 
 CHANNEL_ORDERS = ("gray", "rgb", "bgr")
 
@@ -548,6 +551,7 @@ def encode_file(source, output, *, pattern: SamplingPattern, raw_size: tuple[int
 
     check_output_path(output, [source], overwrite)
     name = display_name(source)
+    log.debug("reading %s", name)
     if raw_size is not None:
         if pix_fmt is None:
             raise OptionError("a raw frame needs a pixel format (--pix-fmt)")
