@@ -29,7 +29,7 @@ import math
 from dataclasses import dataclass, field
 
 import numpy as np
-from numba import njit, prange
+from numba import njit
 
 SCENE_KINDS = ("planes", "slanted", "textureless", "fine_texture", "large_range")
 
@@ -51,24 +51,31 @@ _WAVES_PER_OCTAVE = 4
 _LUMA_WEIGHTS = np.array([0.299, 0.587, 0.114])
 
 
-@njit(cache=True, parallel=True)
-def _sum_of_sines(x, y, fx, fy, phase, amplitude, base):
-    """(N, 3) float64: base + sum_k amplitude[k] * sin(2 pi (fx[k] x + fy[k] y) + phase[k]) at N points."""
-    n = x.shape[0]
+# Serial on purpose: a few multiply-adds per pixel finish before worker threads would pay off.
+@njit(cache=True)
+def _sum_of_sines_on_grid(rows, cols, sin_col, cos_col, sin_row, cos_row, amplitude, base):
+    """(N, 3) float64 texture values at pixels (rows[n], cols[n]).
+
+    Wave k has the phase ``u_k(col) + v_k(row)``; the caller tabulates sin/cos of u over
+    columns (K, W) and of v over rows (K, H), so sin(u + v) costs two products per pixel
+    instead of a sine.
+    """
+    n = rows.shape[0]
     out = np.empty((n, 3))
-    two_pi = 2.0 * np.pi
-    for i in prange(n):
+    for p in range(n):
+        i = cols[p]
+        j = rows[p]
         r = base[0]
         g = base[1]
         b = base[2]
-        for k in range(fx.shape[0]):
-            s = np.sin(two_pi * (fx[k] * x[i] + fy[k] * y[i]) + phase[k])
+        for k in range(amplitude.shape[0]):
+            s = sin_col[k, i] * cos_row[k, j] + cos_col[k, i] * sin_row[k, j]
             r += amplitude[k, 0] * s
             g += amplitude[k, 1] * s
             b += amplitude[k, 2] * s
-        out[i, 0] = r
-        out[i, 1] = g
-        out[i, 2] = b
+        out[p, 0] = r
+        out[p, 1] = g
+        out[p, 2] = b
     return out
 
 
@@ -83,9 +90,26 @@ class _Texture:
     amplitude: np.ndarray   # (K, 3)
 
     def evaluate(self, x: np.ndarray, y: np.ndarray) -> np.ndarray:
-        """RGB values (N, 3) float64 at left-view coordinates x, y (N,)."""
-        return _sum_of_sines(np.ascontiguousarray(x, dtype=np.float64), np.ascontiguousarray(y, dtype=np.float64),
-                             self.fx, self.fy, self.phase, np.ascontiguousarray(self.amplitude), self.base)
+        """RGB values (N, 3) float64 at arbitrary texture coordinates x, y (N,) (reference path)."""
+        angle = (2 * np.pi) * (np.multiply.outer(x, self.fx) + np.multiply.outer(y, self.fy)) + self.phase
+        return self.base + np.sin(angle) @ self.amplitude
+
+    def evaluate_affine(self, rows, cols, *, height, width, scale_x=1.0, shear=0.0, shift=0.0) -> np.ndarray:
+        """RGB values (N, 3) float64 at pixels (rows, cols) whose texture coordinates are affine.
+
+        The pixel ``(row, col)`` shows the texture at ``x = scale_x * col + shear * row + shift``,
+        ``y = row``: the identity for the left view, and the plane's right-to-left map
+        ``x = (col + c + b row) / (1 - a)`` for the right view.  Each wave's phase is then a
+        sum of a column term and a row term, which are tabulated once.
+        """
+        two_pi = 2 * np.pi
+        col_freq = two_pi * self.fx * scale_x
+        row_freq = two_pi * (self.fx * shear + self.fy)
+        row_phase = two_pi * self.fx * shift + self.phase
+        col_angle = np.multiply.outer(col_freq, np.arange(width, dtype=np.float64))
+        row_angle = np.multiply.outer(row_freq, np.arange(height, dtype=np.float64)) + row_phase[:, None]
+        return _sum_of_sines_on_grid(rows, cols, np.sin(col_angle), np.cos(col_angle), np.sin(row_angle),
+                                     np.cos(row_angle), np.ascontiguousarray(self.amplitude), self.base)
 
     def curvature_bound(self) -> float:
         """Upper bound of |d^2 T / dx^2| over every channel (grey levels per pixel^2)."""
@@ -286,13 +310,21 @@ def _front_surface_right(surfaces, xr, y):
     return best, best_xl, best_d
 
 
-def _shade(surfaces, labels, x, y) -> np.ndarray:
-    """Float64 (H, W, 3) image: each pixel's surface texture at left-view coordinates (x, y)."""
+def _shade(surfaces, labels, *, right_view: bool) -> np.ndarray:
+    """Float64 (H, W, 3) image: each pixel's surface texture, for the left or the right view."""
+    height, width = labels.shape
     image = np.zeros(labels.shape + (3,))
     for index, surface in enumerate(surfaces):
-        sel = labels == index
-        if sel.any():
-            image[sel] = surface.texture.evaluate(x[sel], y[sel])
+        rows, cols = np.nonzero(labels == index)
+        if rows.size == 0:
+            continue
+        if right_view:
+            # right pixel (row, col) shows the surface at x = (col + c + b row) / (1 - a)
+            inv = 1.0 / (1.0 - surface.a)
+            mapping = dict(scale_x=inv, shear=surface.b * inv, shift=surface.c * inv)
+        else:
+            mapping = {}
+        image[rows, cols] = surface.texture.evaluate_affine(rows, cols, height=height, width=width, **mapping)
     return image
 
 
@@ -345,9 +377,9 @@ def make_scene(kind: str, *, height: int | None = None, width: int | None = None
 
     y, x = np.mgrid[0:height, 0:width].astype(np.float64)
     surface_left, disparity = _front_surface_left(surfaces, x, y)
-    surface_right, xl_right, _ = _front_surface_right(surfaces, x, y)
-    left = _shade(surfaces, surface_left, x, y)
-    right = _shade(surfaces, surface_right, xl_right, y)
+    surface_right, _, _ = _front_surface_right(surfaces, x, y)
+    left = _shade(surfaces, surface_left, right_view=False)
+    right = _shade(surfaces, surface_right, right_view=True)
 
     # A left pixel is non-occluded when its point lands inside the right image and the
     # right view's nearest surface at that (fractional) position is the same one.
