@@ -77,8 +77,12 @@ class SampleSet:
         return self.values.shape[0] / float(self.height * self.width)
 
     def positions(self):
-        """(rows, cols) of every sample, in transmission order."""
-        return sample_positions(self.pattern, self.height, self.width)
+        """(rows, cols) of every sample, in transmission order.
+
+        ``adaptive_fps`` positions are regenerated from the values; ``downsample`` gives
+        the centre pixel of each block.
+        """
+        return sample_positions(self.pattern, self.height, self.width, values=self.values)
 
     def values_rgb(self) -> np.ndarray:
         """Sample values as (n, channels) with colour in RGB order (gray stays 1 channel)."""
