@@ -177,6 +177,22 @@ def _counting_sorted_edges(keys, height, width, key_count):
 
 
 @njit(cache=True)
+def _sorted_by_digit(edges, keys, shift):
+    """Stable counting sort of edge ids by the 16-bit digit ``keys[e] >> shift & 0xFFFF``."""
+    counts = np.zeros(65537, dtype=np.int64)
+    for e in edges:
+        counts[((keys[e] >> shift) & 0xFFFF) + 1] += 1
+    for k in range(65536):
+        counts[k + 1] += counts[k]
+    result = np.empty_like(edges)
+    for e in edges:
+        digit = (keys[e] >> shift) & 0xFFFF
+        result[counts[digit]] = e
+        counts[digit] += 1
+    return result
+
+
+@njit(cache=True)
 def _find_root(link, node):
     # Path halving keeps the trees flat without recursion.
     while link[node] != node:
@@ -441,7 +457,7 @@ def build_tree(guide: np.ndarray, *, sigma: float = 0.1 * 255, median_size: int 
     -----
     Edge weight = largest absolute channel difference between the two neighbours, in
     8-bit units (uint16 differences are divided by 257).  Kruskal's algorithm runs on the
-    edges in stable key order (counting sort for integer guides), so ties, including the
+    edges in stable key order (counting sort, radix sort for float guides), so ties, including the
     many zero-weight edges of flat regions, are broken deterministically by edge id.
     """
     if not np.isfinite(sigma) or sigma <= 0:
@@ -465,8 +481,9 @@ def build_tree(guide: np.ndarray, *, sigma: float = 0.1 * 255, median_size: int 
         valid = np.ones((height, width, 2), dtype=bool)
         valid[:, -1, 0] = False
         valid[-1, :, 1] = False
-        edge_ids = edge_ids[valid]
-        sorted_edges = edge_ids[np.argsort(keys[edge_ids], kind="stable")].astype(np.int32)
+        # Bit patterns of non-negative float32 sort like the floats: two 16-bit radix passes.
+        bit_keys = keys.view(np.uint32)
+        sorted_edges = _sorted_by_digit(_sorted_by_digit(edge_ids[valid], bit_keys, 0), bit_keys, 16)
         key_scale = 1.0
 
     bits = _kruskal_tree_bits(sorted_edges, height, width)
