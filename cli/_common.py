@@ -36,9 +36,6 @@ from stereobudget.errors import EXIT_INTERRUPTED, MemoryLimitError, StereoBudget
 #: a process killed by the signal).
 EXIT_BROKEN_PIPE = 141
 
-log = logging.getLogger("stereobudget")
-
-
 def prog_name(default: str = "sb") -> str:
     """Name of the running command (``sb-encode``...), for messages."""
     ctx = click.get_current_context(silent=True)
@@ -153,9 +150,3 @@ json_option = click.option("--json", "as_json", is_flag=True,
 def emit_json(obj) -> None:
     """Print ``obj`` as one line of JSON on stdout."""
     click.echo(json.dumps(obj, sort_keys=False, separators=(", ", ": ")))
-
-
-def option_error(message: str):
-    """A :class:`~stereobudget.errors.OptionError` (exit 2) for an inconsistent option set."""
-    from stereobudget.errors import OptionError
-    return OptionError(message)

@@ -321,6 +321,12 @@ def test_refuses_binary_output_to_a_terminal(png):
     assert_clean_error(proc, OutputError.exit_code, "terminal")
 
 
+def test_cli_pixel_formats_match_the_library():
+    from stereobudget.cli.encode import _RAW_PIX_FMTS
+    from stereobudget.imageio import RAW_PIXEL_FORMATS
+    assert set(_RAW_PIX_FMTS) == set(RAW_PIXEL_FORMATS)
+
+
 def test_version():
     result = invoke("--version")
     assert result.exit_code == 0 and __version__ in result.output
