@@ -232,3 +232,19 @@ def test_every_pattern_round_trips_through_the_sample_file(kind, dtype, order):
         np.testing.assert_array_equal(restored.values, downsample_blocks(img3, pattern))
     else:
         np.testing.assert_array_equal(restored.values, img3[rows, cols])
+
+
+def test_test_vectors_of_docs_format_md():
+    rows, cols = sample_positions(SamplingPattern("fps", 4, 4, seed=42), 6, 10)
+    assert list(zip(rows.tolist(), cols.tolist())) == [(4, 9), (0, 0), (5, 3), (0, 5), (0, 9), (4, 0)]
+    rows, cols = sample_positions(SamplingPattern("fps", 5, 5, seed=0), 375, 450)
+    assert list(zip(rows[:5].tolist(), cols[:5].tolist())) == [(322, 225), (0, 0), (0, 449), (240, 0),
+                                                               (83, 224)]
+    y, x = np.mgrid[0:12, 0:16]
+    img = np.where(x < 8, 100, (37 * (16 * y + x)) % 256).astype(np.uint8)
+    rows, cols = sample_positions(SamplingPattern("adaptive_fps", 4, 4, seed=42), 12, 16, image=img)
+    assert list(zip(rows.tolist(), cols.tolist())) == [
+        (7, 7), (0, 15), (0, 0), (11, 15), (11, 0), (0, 7), (6, 13), (5, 2), (11, 10), (2, 11), (11, 5), (5, 10)]
+    img = np.arange(35, dtype=np.uint8).reshape(5, 7)
+    np.testing.assert_array_equal(downsample_blocks(img, SamplingPattern("downsample", 3, 2)).ravel(),
+                                  [5, 8, 10, 19, 22, 24, 29, 32, 34])
