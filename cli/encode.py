@@ -35,17 +35,18 @@ def build_pattern(*, pattern: str, stride: int, stride_x: int | None, stride_y: 
     Raises
     ------
     OptionError
-        Offset outside the stride, an offset with ``jitter`` or a seed with ``grid``.
+        Offset outside the stride, an offset with any pattern but ``grid``, a seed with
+        ``grid`` or ``downsample``.
     """
     from stereobudget.sampling import SamplingPattern
 
     sx = stride if stride_x is None else stride_x
     sy = stride if stride_y is None else stride_y
     ox, oy = _parse_offset(offset) if offset is not None else (0, 0)
-    if pattern == "jitter" and offset is not None:
-        raise OptionError("--offset applies to --pattern grid only (jitter picks one pixel per cell)")
-    if pattern == "grid" and seed is not None:
-        raise OptionError("--seed applies to --pattern jitter only")
+    if pattern != "grid" and offset is not None:
+        raise OptionError(f"--offset applies to --pattern grid only, not {pattern}")
+    if pattern in ("grid", "downsample") and seed is not None:
+        raise OptionError("--seed applies to --pattern fps, adaptive_fps or jitter only")
     if not (ox < sx and oy < sy):
         raise OptionError(f"--offset {ox},{oy} must be smaller than the stride {sx}x{sy}")
     return SamplingPattern(kind=pattern, stride_x=sx, stride_y=sy, offset_x=ox, offset_y=oy,
@@ -66,10 +67,13 @@ def _show_info(path, *, verify: bool) -> None:
 @click.option("--stride-y", type=_U16, default=None, help="Vertical spacing (overrides --stride).")
 @click.option("--offset", metavar="X,Y", default=None,
               help="Position of the first grid sample, 0 <= offset < stride.  [default: 0,0]")
-@click.option("--pattern", type=click.Choice(["grid", "jitter"]), default="grid", show_default=True,
-              help="grid: I2[oy::sy, ox::sx]; jitter: one pseudo-random pixel per cell.")
+@click.option("--pattern", type=click.Choice(["grid", "jitter", "fps", "adaptive_fps", "downsample"]),
+              default="grid", show_default=True,
+              help="grid: I2[oy::sy, ox::sx]; jitter: one pseudo-random pixel per cell; fps / "
+                   "adaptive_fps: farthest point sampling with the grid's budget; downsample: "
+                   "block means (see docs/format.md).")
 @click.option("--seed", type=click.IntRange(0, 2 ** 64 - 1), default=None,
-              help="Seed of the jitter pattern (0..2^64-1).  [default: 0]")
+              help="Seed of the jitter/fps/adaptive_fps pattern (0..2^64-1).  [default: 0]")
 @click.option("--raw", "raw_size", metavar="WxH", default=None,
               help="Input is one headerless frame of this size (needs --pix-fmt).")
 @click.option("--pix-fmt", type=click.Choice(_RAW_PIX_FMTS), default=None,

@@ -248,3 +248,28 @@ def test_test_vectors_of_docs_format_md():
     img = np.arange(35, dtype=np.uint8).reshape(5, 7)
     np.testing.assert_array_equal(downsample_blocks(img, SamplingPattern("downsample", 3, 2)).ravel(),
                                   [5, 8, 10, 19, 22, 24, 29, 32, 34])
+
+
+@pytest.mark.parametrize("kind", ["fps", "adaptive_fps", "downsample"])
+def test_sb_encode_writes_the_new_patterns(tmp_path, kind):
+    import cv2
+    from click.testing import CliRunner
+
+    from stereobudget.cli.encode import encode_command
+    from stereobudget.container import load_samples
+
+    img = _textured_image(30, 44, seed=8)
+    cv2.imwrite(str(tmp_path / "right.png"), img[:, :, ::-1])
+    args = [str(tmp_path / "right.png"), "-o", str(tmp_path / "r.sbs"), "--pattern", kind, "--stride", "3"]
+    if kind != "downsample":
+        args += ["--seed", "21"]
+    result = CliRunner().invoke(encode_command, args)
+    assert result.exit_code == 0, result.output
+    samples = load_samples(tmp_path / "r.sbs")
+    assert samples.pattern == SamplingPattern(kind, 3, 3, seed=0 if kind == "downsample" else 21)
+    assert samples.channel_order == "rgb"
+    if kind == "downsample":
+        np.testing.assert_array_equal(samples.values, downsample_blocks(img, samples.pattern))
+    else:
+        rows, cols = samples.positions()
+        np.testing.assert_array_equal(samples.values, img[rows, cols])
