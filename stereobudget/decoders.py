@@ -6,6 +6,13 @@ pipeline of pure functions from the other modules:
 * ``sparse`` (paper Fig. 2(b)): Eq. (2) sparse DSI -> Eq. (3) normalised joint bilateral
   fill guided by I1 -> Yang's non-local aggregation on I1's MST -> winner-take-all with
   parabolic sub-pixel refinement -> 3x3 median.
+* ``hybrid`` (paper Fig. 2(c)): a weighted mean of the Sparse filled DSI and a full DSI
+  between the low-passed interpolation of the samples and an equally low-passed I1, then
+  aggregation, Yang's left-right check against the interpolated right image, and
+  non-local refinement.
+* ``downsample`` (paper Fig. 2(a)): the camera sent block means; they are upsampled, I1
+  is passed through the same down/up operator so both have the same spectrum, and the
+  pair is matched like a full pair (LR check + refinement).
 * ``full`` (``stride 1``): the same aggregation on the full DSI of Eq. (1) with Yang's
   left-right check and non-local refinement; the "100 % of I2" reference.
 """
@@ -27,7 +34,9 @@ from . import tree as _tree
 
 log = logging.getLogger("stereobudget")
 
-METHODS = ("sparse", "full")
+METHODS = ("hybrid", "sparse", "downsample", "full")
+#: Method used when the caller does not choose one.
+DEFAULT_METHOD = "hybrid"
 
 
 @dataclass(frozen=True)
@@ -37,28 +46,49 @@ class DecoderParams:
     Attributes
     ----------
     sigma_r : float
-        Range sigma of the joint bilateral fill, 8-bit units (paper: 20).
+        Range sigma of the joint bilateral fill, 8-bit units (paper: 20; 15 measured
+        slightly better on Middlebury and neutral on the synthetic scenes).
     sigma_s_per_stride : float
-        Spatial sigma of the fill in units of the sampling stride (paper: 3).
+        Spatial sigma of the fill in units of the sampling stride (paper: 3; 2 is better
+        on every Middlebury scene group and on 9 of 10 synthetic scenes: a narrower
+        window mixes fewer costs from occluded pixels into their visible neighbours).
     truncation : float
-        Truncation of the absolute colour difference (8-bit units).
+        Truncation of the sparse (Eq. 2) absolute colour difference, 8-bit units.  With
+        only samples there is no gradient term, so the colour term carries the match and
+        a wider truncation than the full-pair cost keeps it discriminative.
+    full_truncation, grad_truncation : float
+        Truncations of the colour and x-gradient terms of a dense DSI (full pair,
+        Downsample, Hybrid's interpolated DSI): Yang / Rhemann et al.'s 7 and 2.
     tree_sigma : float
         Similarity falloff of the MST aggregation (Yang: 0.1 * 255).
     tree_median : int
         Median filter applied to I1 before building the tree (0 = off).
     grad_weight : float
-        Weight of the gradient term of the full DSI (Yang: 0.11).
+        Weight of the gradient term of a dense DSI (Yang / Rhemann et al.: 0.89, colour
+        gets 0.11).
     median_size : int
         Median filter on the final disparity (0 = off).
+    lowpass_per_stride : float
+        Hybrid: sigma of the Gaussian that interpolates the samples and low-passes I1, in
+        units of the stride.  0.5 puts the Gaussian's response at the samples' Nyquist
+        frequency 1/(2 s) at exp(-pi^2 / 8) = 29 % (0.7 -> 9 % suppresses aliases better
+        but blurs away the detail the dense DSI is for; docs/results.md has the sweep).
+    hybrid_sparse_weight : float or None
+        Hybrid: weight of the Sparse DSI in the mean (the interpolated DSI gets 1 - w).
+        ``None``: chosen from the stride by :func:`hybrid_weight`.
     """
 
-    sigma_r: float = 20.0
-    sigma_s_per_stride: float = 3.0
+    sigma_r: float = 15.0
+    sigma_s_per_stride: float = 2.0
     truncation: float = DEFAULT_TRUNCATION
+    full_truncation: float = 7.0
+    grad_truncation: float = 2.0
     tree_sigma: float = 0.1 * 255
     tree_median: int = 3
-    grad_weight: float = 0.11
+    grad_weight: float = 0.89
     median_size: int = 3
+    lowpass_per_stride: float = 0.5
+    hybrid_sparse_weight: float | None = None
 
 
 @dataclass
@@ -171,8 +201,134 @@ def _is_full_grid(samples: SampleSet) -> bool:
     return p.kind == "grid" and p.stride_x == 1 and p.stride_y == 1
 
 
+def _sample_values_f32(samples: SampleSet) -> np.ndarray:
+    """Sample values as float32 (n, C) RGB in 8-bit units."""
+    return to_float_image(samples.values_rgb()[:, None, :])[:, 0, :]
+
+
+def _stride(samples: SampleSet) -> float:
+    return float(np.sqrt(samples.pattern.stride_x * samples.pattern.stride_y))
+
+
+def hybrid_weight(stride: float) -> float:
+    """Weight of the Sparse DSI in Hybrid's mean, from the sampling stride.
+
+    The sweep in docs/results.md (strides 3 and 5, weights 0.3-0.9) has its optimum at
+    0.7 for both: the interpolated DSI is blurred in proportion to the stride, but so is
+    the Sparse fill (sigma_s = 3 stride), so their relative reliability does not move
+    with the sampling rate and one weight serves all strides.
+    """
+    return 0.7
+
+
+def _sparse_filled_cost(left_f, guide, samples, *, min_disp, num_disp, params):
+    rows, cols = samples.positions()
+    return filled_sparse_dsi(left_f, guide, rows, cols, _sample_values_f32(samples), min_disp=min_disp,
+                             num_disp=num_disp, sigma_s=params.sigma_s_per_stride * _stride(samples),
+                             sigma_r=params.sigma_r, truncation=params.truncation)
+
+
+def lowpass_interpolation(samples: SampleSet, *, sigma: float) -> np.ndarray:
+    """Dense low-passed estimate of I2 from its samples: a normalised Gaussian convolution.
+
+    Interpolation and low-pass are one operation, which works for any sampling pattern.
+
+    Returns
+    -------
+    ndarray, float32 (H, W, C), 8-bit units
+    """
+    from .bilateral import sparse_joint_bilateral
+    rows, cols = samples.positions()
+    flat = np.zeros((samples.height, samples.width), np.float32)
+    # A huge range sigma turns the joint bilateral filter into a spatial one.
+    return sparse_joint_bilateral(flat, rows, cols, _sample_values_f32(samples), sigma_s=sigma,
+                                  sigma_r=1e6, missing_value=0.0)
+
+
+def gaussian_lowpass(image_f32: np.ndarray, *, sigma: float) -> np.ndarray:
+    """Gaussian low-pass of a float32 (H, W, C) image, the same spectrum as :func:`lowpass_interpolation`."""
+    import cv2
+    out = cv2.GaussianBlur(image_f32, (0, 0), sigmaX=sigma, sigmaY=sigma, borderType=cv2.BORDER_REFLECT)
+    return out.reshape(image_f32.shape)
+
+
+def _decode_hybrid(left_f, guide, samples, tree, *, min_disp, num_disp, params, timer):
+    from .refine import left_right_refined_disparity
+    stride = _stride(samples)
+    weight = params.hybrid_sparse_weight if params.hybrid_sparse_weight is not None else hybrid_weight(stride)
+    with timer("jbf_fill"):
+        cost = _sparse_filled_cost(left_f, guide, samples, min_disp=min_disp, num_disp=num_disp, params=params)
+    with timer("interpolate"):
+        sigma = params.lowpass_per_stride * stride
+        right_lp = lowpass_interpolation(samples, sigma=sigma)
+        left_lp = gaussian_lowpass(left_f, sigma=sigma)
+    with timer("cost"):
+        cost_lp = full_dsi(left_lp, right_lp, min_disp=min_disp, num_disp=num_disp,
+                           truncation=params.full_truncation, grad_weight=params.grad_weight,
+                           grad_truncation=params.grad_truncation)
+        # Both DSIs are brought to [0, 1] by their largest possible value before mixing.
+        dense_max = (1 - params.grad_weight) * params.full_truncation + params.grad_weight * params.grad_truncation
+        cost *= np.float32(weight / params.truncation)
+        cost += np.float32((1.0 - weight) / dense_max) * cost_lp
+        del cost_lp
+    with timer("tree"):
+        right_tree = _tree.build_tree(right_lp, sigma=params.tree_sigma, median_size=params.tree_median)
+    disp, _ = left_right_refined_disparity(cost, left_tree=tree, right_tree=right_tree, min_disp=min_disp,
+                                           params=params, timer=timer)
+    return disp
+
+
+def _decode_downsample(left_f, samples, tree, *, min_disp, num_disp, params, timer):
+    import cv2
+    from .refine import left_right_refined_disparity
+    p = samples.pattern
+    h, w = samples.height, samples.width
+    rows, cols = -(-h // p.stride_y), -(-w // p.stride_x)
+    with timer("interpolate"):
+        low = _sample_values_f32(samples).reshape(rows, cols, samples.channels)
+        right_up = _upsample_blocks(low, p.stride_x, p.stride_y, h, w)
+        # I1 goes through the same area-down / linear-up operator, so both images carry the same spectrum.
+        left_low = np.stack([_block_means(left_f[:, :, c], p.stride_x, p.stride_y) for c in range(left_f.shape[2])],
+                            axis=2)
+        left_up = _upsample_blocks(left_low, p.stride_x, p.stride_y, h, w)
+    with timer("cost"):
+        cost = full_dsi(left_up, right_up, min_disp=min_disp, num_disp=num_disp,
+                        truncation=params.full_truncation, grad_weight=params.grad_weight,
+                        grad_truncation=params.grad_truncation)
+    with timer("tree"):
+        right_tree = _tree.build_tree(right_up, sigma=params.tree_sigma, median_size=params.tree_median)
+    disp, _ = left_right_refined_disparity(cost, left_tree=tree, right_tree=right_tree, min_disp=min_disp,
+                                           params=params, timer=timer)
+    return disp
+
+
+def _block_means(channel: np.ndarray, sx: int, sy: int) -> np.ndarray:
+    """Means of sy x sx blocks (partial blocks at the edges average the pixels they have)."""
+    h, w = channel.shape
+    rows, cols = -(-h // sy), -(-w // sx)
+    padded = np.zeros((rows * sy, cols * sx), np.float64)
+    count = np.zeros_like(padded)
+    padded[:h, :w] = channel
+    count[:h, :w] = 1.0
+    s = padded.reshape(rows, sy, cols, sx).sum(axis=(1, 3))
+    n = count.reshape(rows, sy, cols, sx).sum(axis=(1, 3))
+    return (s / n).astype(np.float32)
+
+
+def _upsample_blocks(low: np.ndarray, sx: int, sy: int, h: int, w: int) -> np.ndarray:
+    """Bilinear upsampling of block means to full resolution, block centres aligned."""
+    import cv2
+    rows, cols = low.shape[:2]
+    ys = (np.arange(h, dtype=np.float32) - (sy - 1) / 2.0) / sy
+    xs = (np.arange(w, dtype=np.float32) - (sx - 1) / 2.0) / sx
+    map_x, map_y = np.meshgrid(xs, ys)
+    out = cv2.remap(np.ascontiguousarray(low, np.float32), map_x, map_y, interpolation=cv2.INTER_LINEAR,
+                    borderMode=cv2.BORDER_REPLICATE)
+    return out.reshape(h, w, low.shape[2])
+
+
 def decode(left: np.ndarray, samples: SampleSet, *, max_disp: int, min_disp: int = 0,
-           method: str = "sparse", params: DecoderParams | None = None) -> DecodeResult:
+           method: str | None = None, params: DecoderParams | None = None) -> DecodeResult:
     """Dense disparity of the left view from I1 and the right camera's samples.
 
     Parameters
@@ -183,8 +339,9 @@ def decode(left: np.ndarray, samples: SampleSet, *, max_disp: int, min_disp: int
         What the right camera sent.
     max_disp, min_disp : int
         Disparity search range, inclusive.
-    method : {"sparse", "full"}
-        Decoder.  A sample set with stride 1 is always decoded as ``full``.
+    method : {"hybrid", "sparse", "downsample", "full"}
+        Decoder.  A sample set with stride 1 is always decoded as ``full``; a
+        ``downsample`` sample file only as ``downsample``.
     params : DecoderParams, optional
 
     Returns
@@ -192,6 +349,7 @@ def decode(left: np.ndarray, samples: SampleSet, *, max_disp: int, min_disp: int
     DecodeResult
     """
     params = params or DecoderParams()
+    method = method or DEFAULT_METHOD
     if method not in METHODS:
         raise OptionError(f"unknown method {method!r}; expected one of {', '.join(METHODS)}")
     check_inputs(left, samples, min_disp=min_disp, max_disp=max_disp)
@@ -204,23 +362,31 @@ def decode(left: np.ndarray, samples: SampleSet, *, max_disp: int, min_disp: int
         guide = to_gray(left_f)
     with timer("tree"):
         tree = _tree.build_tree(left_f, sigma=params.tree_sigma, median_size=params.tree_median)
+    if samples.pattern.kind == "downsample" and method not in ("downsample",):
+        if method != "hybrid":
+            raise OptionError(f"a downsample sample file can only be decoded with --method downsample, not {method}")
+        method = "downsample"
+    elif method == "downsample" and samples.pattern.kind != "downsample":
+        raise OptionError(f"--method downsample needs a sample file written with --pattern downsample "
+                          f"(this one is {samples.pattern.kind})")
     if method == "sparse":
         with timer("jbf_fill"):
-            rows, cols = samples.positions()
-            right_values = to_float_image(samples.values_rgb()[:, None, :])[:, 0, :]
-            stride = float(np.sqrt(samples.pattern.stride_x * samples.pattern.stride_y))
-            cost = filled_sparse_dsi(left_f, guide, rows, cols, right_values, min_disp=min_disp,
-                                     num_disp=num_disp, sigma_s=params.sigma_s_per_stride * stride,
-                                     sigma_r=params.sigma_r, truncation=params.truncation)
+            cost = _sparse_filled_cost(left_f, guide, samples, min_disp=min_disp, num_disp=num_disp, params=params)
         with timer("aggregate"):
-            cost = _tree.aggregate(cost, tree)
+            cost = _tree.aggregate(cost, tree, out=cost)
         with timer("wta"):
             disp = winner_take_all(cost, int(min_disp))
             disp = median_filter_disparity(disp, params.median_size)
+    elif method == "hybrid":
+        disp = _decode_hybrid(left_f, guide, samples, tree, min_disp=min_disp, num_disp=num_disp,
+                              params=params, timer=timer)
+    elif method == "downsample":
+        disp = _decode_downsample(left_f, samples, tree, min_disp=min_disp, num_disp=num_disp,
+                                  params=params, timer=timer)
     else:
         from .refine import full_pair_disparity
-        right_full = samples.grid_values()[:, :, :]
-        right_f = to_float_image(right_full if samples.channel_order != "bgr" else right_full[:, :, ::-1])
+        with timer("prepare"):
+            right_f = _sample_values_f32(samples).reshape(samples.height, samples.width, samples.channels)
         disp = full_pair_disparity(left_f, right_f, tree=tree, min_disp=min_disp, num_disp=num_disp,
                                    params=params, timer=timer)
     return DecodeResult(disparity=disp, method=method, min_disp=int(min_disp), max_disp=int(max_disp),

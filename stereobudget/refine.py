@@ -98,20 +98,31 @@ def nonlocal_refinement(disp: np.ndarray, stable: np.ndarray, tree, *, min_disp:
     return winner_take_all(cost, int(min_disp))
 
 
-def full_pair_disparity(left_f, right_f, *, tree, min_disp, num_disp, params, timer):
-    """Standard full-pair stereo with Yang's non-local method (the "100 % of I2" reference).
+def left_right_refined_disparity(cost, *, left_tree, right_tree, min_disp, params, timer):
+    """Aggregate a left-view cost volume, check it against the right view, refine (Yang).
 
-    ``left_f``/``right_f`` are float32 (H, W, C) images in 8-bit units.
+    Parameters
+    ----------
+    cost : ndarray, float32 (H, W, D)
+        Unaggregated left-view cost; consumed (aggregated in place).
+    left_tree, right_tree : stereobudget.tree.MinimumSpanningTree
+        Trees of the left image and of the (possibly interpolated) right image.
+    min_disp : int
+    params : stereobudget.decoders.DecoderParams
+    timer : callable
+        ``timer(stage)`` context manager that records stage times.
+
+    Returns
+    -------
+    disparity : ndarray, float32 (H, W)
+    stable : ndarray, bool (H, W)
+        Pixels that passed the left-right check.
     """
     from .decoders import winner_take_all, median_filter_disparity
-    with timer("cost"):
-        cost = full_dsi(left_f, right_f, min_disp=min_disp, num_disp=num_disp,
-                        truncation=params.truncation, grad_weight=params.grad_weight)
-    with timer("tree"):
-        right_tree = _tree.build_tree(right_f, sigma=params.tree_sigma, median_size=params.tree_median)
+    num_disp = cost.shape[2]
     with timer("aggregate"):
         cost_r = right_view_cost(cost, int(min_disp))
-        cost = _tree.aggregate(cost, tree, out=cost)
+        cost = _tree.aggregate(cost, left_tree, out=cost)
         cost_r = _tree.aggregate(cost_r, right_tree, out=cost_r)
     with timer("wta"):
         disp_l = winner_take_all(cost, int(min_disp))
@@ -119,6 +130,22 @@ def full_pair_disparity(left_f, right_f, *, tree, min_disp, num_disp, params, ti
     del cost, cost_r
     with timer("refine"):
         stable = left_right_stable(disp_l, disp_r, np.float32(1.0))
-        disp = nonlocal_refinement(disp_l, stable, tree, min_disp=min_disp, num_disp=num_disp)
+        disp = nonlocal_refinement(disp_l, stable, left_tree, min_disp=min_disp, num_disp=num_disp)
         disp = median_filter_disparity(disp, params.median_size)
+    return disp, stable
+
+
+def full_pair_disparity(left_f, right_f, *, tree, min_disp, num_disp, params, timer):
+    """Standard full-pair stereo with Yang's non-local method (the "100 % of I2" reference).
+
+    ``left_f``/``right_f`` are float32 (H, W, C) images in 8-bit units.
+    """
+    with timer("cost"):
+        cost = full_dsi(left_f, right_f, min_disp=min_disp, num_disp=num_disp,
+                        truncation=params.full_truncation, grad_weight=params.grad_weight,
+                        grad_truncation=params.grad_truncation)
+    with timer("tree"):
+        right_tree = _tree.build_tree(right_f, sigma=params.tree_sigma, median_size=params.tree_median)
+    disp, _ = left_right_refined_disparity(cost, left_tree=tree, right_tree=right_tree, min_disp=min_disp,
+                                           params=params, timer=timer)
     return disp
