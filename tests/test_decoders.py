@@ -1,0 +1,115 @@
+"""End-to-end decoder behaviour on synthetic scenes with exact ground truth."""
+
+import numpy as np
+import pytest
+
+import stereobudget
+from stereobudget.container import encode_image
+from stereobudget.decoders import DecoderParams, winner_take_all
+from stereobudget.errors import MismatchError, OptionError
+from stereobudget.sampling import SamplingPattern
+from stereobudget.scenes import make_scene
+
+
+def _good_fraction(disparity, scene):
+    m = scene.nonocc
+    return float(np.mean(np.abs(disparity[m] - scene.disparity[m]) <= 1.0))
+
+
+@pytest.fixture(scope="module", params=["planes", "slanted"])
+def scene(request):
+    return make_scene(request.param, seed=0)
+
+
+@pytest.mark.parametrize("method", ["sparse", "hybrid"])
+def test_stride5_recovers_95_percent_of_visible_pixels(scene, method):
+    samples = encode_image(scene.right, pattern=SamplingPattern("grid", 5, 5))
+    assert samples.epsilon == pytest.approx(0.04, abs=0.005)
+    result = stereobudget.decode(scene.left, samples, max_disp=int(np.ceil(scene.max_disp)), method=method)
+    assert result.disparity.shape == scene.left.shape[:2]
+    assert result.disparity.dtype == np.float32
+    assert _good_fraction(result.disparity, scene) >= 0.95
+
+
+def test_jittered_grid_decodes_as_well(scene):
+    samples = encode_image(scene.right, pattern=SamplingPattern("jitter", 5, 5, seed=7))
+    result = stereobudget.decode(scene.left, samples, max_disp=int(np.ceil(scene.max_disp)), method="sparse")
+    assert _good_fraction(result.disparity, scene) >= 0.95
+
+
+def test_stride1_is_full_pair_stereo(scene):
+    samples = encode_image(scene.right, pattern=SamplingPattern("grid", 1, 1))
+    result = stereobudget.decode(scene.left, samples, max_disp=int(np.ceil(scene.max_disp)), method="sparse")
+    assert result.method == "full"
+    assert _good_fraction(result.disparity, scene) >= 0.97
+
+
+def test_downsample_pattern_decodes_with_downsample_method():
+    sc = make_scene("planes", seed=1)
+    samples = encode_image(sc.right, pattern=SamplingPattern("downsample", 3, 3))
+    result = stereobudget.decode(sc.left, samples, max_disp=int(np.ceil(sc.max_disp)))
+    assert result.method == "downsample"
+    assert _good_fraction(result.disparity, sc) >= 0.90
+
+
+def test_min_disp_offsets_the_search_range():
+    sc = make_scene("planes", seed=0)
+    lo = int(np.floor(np.nanmin(sc.disparity))) - 1
+    samples = encode_image(sc.right, pattern=SamplingPattern("grid", 5, 5))
+    result = stereobudget.decode(sc.left, samples, min_disp=lo, max_disp=int(np.ceil(sc.max_disp)),
+                                 method="sparse")
+    assert np.nanmin(result.disparity) >= lo - 0.5
+    assert _good_fraction(result.disparity, sc) >= 0.95
+
+
+def test_uint16_and_gray_inputs_match_uint8_results():
+    sc = make_scene("slanted", seed=2)
+    p = SamplingPattern("grid", 4, 4)
+    ref = stereobudget.decode(sc.left, encode_image(sc.right, pattern=p), max_disp=int(np.ceil(sc.max_disp)),
+                              method="sparse").disparity
+    left16 = sc.left.astype(np.uint16) * 257
+    right16 = sc.right.astype(np.uint16) * 257
+    d16 = stereobudget.decode(left16, encode_image(right16, pattern=p), max_disp=int(np.ceil(sc.max_disp)),
+                              method="sparse").disparity
+    assert np.mean(np.abs(d16 - ref) <= 0.25) > 0.99
+    gray_l = sc.left.mean(axis=2).astype(np.uint8)
+    gray_r = sc.right.mean(axis=2).astype(np.uint8)
+    dg = stereobudget.decode(gray_l, encode_image(gray_r, pattern=p), max_disp=int(np.ceil(sc.max_disp)),
+                             method="sparse").disparity
+    assert _good_fraction(dg, sc) >= 0.9
+
+
+def test_mismatched_inputs_are_refused():
+    sc = make_scene("planes", seed=0, height=60, width=80)
+    samples = encode_image(sc.right, pattern=SamplingPattern("grid", 5, 5))
+    with pytest.raises(MismatchError, match="80x60"):
+        stereobudget.decode(sc.left[:50], samples, max_disp=10)
+    with pytest.raises(MismatchError, match="channel"):
+        stereobudget.decode(sc.left[:, :, 0], samples, max_disp=10)
+    with pytest.raises(MismatchError, match="uint16"):
+        stereobudget.decode(sc.left.astype(np.uint16), samples, max_disp=10)
+    with pytest.raises(OptionError):
+        stereobudget.decode(sc.left, samples, max_disp=5, min_disp=5)
+    with pytest.raises(OptionError):
+        stereobudget.decode(sc.left, samples, max_disp=200)
+    with pytest.raises(OptionError, match="unknown method"):
+        stereobudget.decode(sc.left, samples, max_disp=10, method="magic")
+    with pytest.raises(OptionError, match="downsample"):
+        stereobudget.decode(sc.left, samples, max_disp=10, method="downsample")
+
+
+def test_winner_take_all_subpixel_parabola():
+    d = np.arange(8, dtype=np.float32)
+    # Parabola with its minimum at 3.3: the fit must recover it exactly.
+    cost = ((d - 3.3) ** 2)[None, None, :].astype(np.float32)
+    out = winner_take_all(np.ascontiguousarray(cost), 2)
+    assert out[0, 0] == pytest.approx(5.3, abs=1e-4)
+
+
+def test_timings_and_summary_are_reported(scene):
+    samples = encode_image(scene.right, pattern=SamplingPattern("grid", 5, 5))
+    result = stereobudget.decode(scene.left, samples, max_disp=int(np.ceil(scene.max_disp)), method="hybrid",
+                                 params=DecoderParams())
+    assert {"tree", "jbf_fill", "aggregate", "wta"} <= set(result.timings)
+    s = result.summary()
+    assert s["method"] == "hybrid" and s["params"]["sigma_r"] == 15.0
