@@ -8,6 +8,7 @@ import pty
 import signal
 import struct
 import subprocess
+import tempfile
 import sys
 import zlib
 from pathlib import Path
@@ -171,8 +172,10 @@ def _loaded_heavy_modules(args) -> list:
             "from stereobudget.cli.encode import main\n"
             "try:\n    main(sys.argv[1:])\nexcept SystemExit as e:\n    assert not e.code, e.code\n"
             "print(json.dumps(sorted(m for m in ('cv2', 'numba') if m in sys.modules)))\n")
+    # cwd outside the checkout: `python -c` puts the cwd first on sys.path, and the source
+    # tree's stereobudget/ lacks the stereobudget.cli subpackage that installation maps in.
     proc = subprocess.run([sys.executable, "-c", code, *map(str, args)], capture_output=True,
-                          text=True, timeout=60)
+                          text=True, timeout=60, cwd=tempfile.gettempdir())
     assert proc.returncode == 0, proc.stderr
     return json.loads(proc.stdout.splitlines()[-1])
 

@@ -7,6 +7,7 @@ import json
 import logging
 import struct
 import subprocess
+import tempfile
 import sys
 import zlib
 
@@ -210,7 +211,8 @@ def test_raw_path_does_not_import_opencv_or_numba():
             "import stereobudget.container; "
             "read_raw(bytes(12), width=2, height=2, pix_fmt='rgb24'); "
             "print(json.dumps([m for m in ('cv2', 'numba') if m in sys.modules]))")
-    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True,
+                         cwd=tempfile.gettempdir())  # keep the source checkout off sys.path
     assert json.loads(out.stdout) == []
 
 
