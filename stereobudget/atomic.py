@@ -117,7 +117,12 @@ def write_output_bytes(path, data: bytes, *, overwrite: bool = False, fsync: boo
         if stdout.isatty():
             raise OutputError("refusing to write binary data to a terminal; redirect it or use -o FILE",
                               path="<stdout>")
-        stdout.write(data)
+        # A pipe whose reader has gone can accept part of a large write and report the
+        # short count instead of raising; keep writing so the next write raises EPIPE.
+        view = memoryview(data).cast("B")
+        while view:
+            written = stdout.write(view)
+            view = view[written if written is not None else len(view):]
         stdout.flush()
         return
     try:
