@@ -48,11 +48,12 @@ class SamplingPattern:
         One of :data:`PATTERN_KINDS`.
     stride_x, stride_y : int
         Grid spacing in pixels (>= 1).  For ``fps``/``adaptive_fps`` they set the sample
-        budget (``ceil(H/sy)*ceil(W/sx)`` samples); for ``downsample`` the block size.
+        budget (``ceil(H/sy)*ceil(W/sx)`` samples) and, for ``adaptive_fps``, the tiles of
+        its activity map; for ``downsample`` the block size.
     offset_x, offset_y : int
         Position of the first grid sample, ``0 <= offset < stride`` (grid only).
     seed : int
-        Seed of pseudo-random patterns (jitter, fps); 0 for deterministic ones.
+        Seed of pseudo-random patterns (jitter, fps, adaptive_fps); 0 for deterministic ones.
     """
 
     kind: str = "grid"
