@@ -72,6 +72,9 @@ def _pairs_from_arguments(inputs, left_dir, samples_dir, manifest):
 @click.option("--preview", metavar="OUT.png", default=None, help="Colour preview of the disparity (PNG).")
 @click.option("--right", metavar="OUT", default=None,
               help="Recovered right image (PNG/TIFF, the input's channels and bit depth; '-' = stdout).")
+@click.option("--max-memory", metavar="SIZE", default=None,
+              help="Refuse a pair whose decode would need more memory than SIZE (e.g. 8G, 500M).  "
+                   "[default: 75 % of the available memory, or $STEREOBUDGET_MAX_MEMORY]")
 @_batch.jobs_options
 @common.overwrite_option
 @common.json_option
@@ -79,7 +82,7 @@ def _pairs_from_arguments(inputs, left_dir, samples_dir, manifest):
 @common.version_option
 @common.handle_errors
 def decode_command(inputs, left_dir, samples_dir, manifest, max_disp, min_disp, method, disparity,
-                   preview, right, jobs, scheduler, overwrite, as_json):
+                   preview, right, max_memory, jobs, scheduler, overwrite, as_json):
     """Recover the disparity of LEFT from the right camera's SAMPLES (.sbs).
 
     One of LEFT and SAMPLES may be '-' (standard input).  LEFT and SAMPLES may also be
@@ -101,6 +104,12 @@ def decode_command(inputs, left_dir, samples_dir, manifest, max_disp, min_disp, 
     """
     from stereobudget.batch import DecodeJob, check_distinct_outputs, decode_file, decode_job, has_template
 
+    if max_memory is not None:
+        from stereobudget.limits import parse_size
+        try:
+            max_memory = parse_size(max_memory)
+        except ValueError as exc:
+            raise OptionError(f"--max-memory: {exc}") from None
     templates = {name: value for name, value in (("disparity", disparity), ("preview", preview),
                                                   ("right", right)) if value is not None}
     if not templates:
@@ -130,7 +139,7 @@ def decode_command(inputs, left_dir, samples_dir, manifest, max_disp, min_disp, 
         job_list.append(DecodeJob(
             left=pair.left, samples=pair.samples, max_disp=pair_max,
             min_disp=pair.min_disp if pair.min_disp is not None else min_disp, method=method,
-            overwrite=overwrite, batch=batch, problem=pair.problem, **outputs))
+            overwrite=overwrite, batch=batch, problem=pair.problem, max_memory=max_memory, **outputs))
     if all(job.max_disp is None for job in job_list):
         raise OptionError("missing --max-disp (the largest disparity to search, in pixels)")
 

@@ -39,7 +39,7 @@ from pathlib import Path
 from typing import Callable, Iterable, Iterator
 
 from .atomic import STDIO, check_output_path, display_name
-from .errors import OptionError, OutputError, StereoBudgetError
+from .errors import MemoryLimitError, OptionError, OutputError, StereoBudgetError
 
 log = logging.getLogger("stereobudget")
 
@@ -473,6 +473,8 @@ class DecodeJob:
         Cap on numba threads in the worker.
     problem : str or None
         Why this pair cannot be decoded (set by the pairing step).
+    max_memory : int or None
+        Memory limit of the decode in bytes (None: 75 % of the available memory).
     """
 
     left: str | None
@@ -487,6 +489,7 @@ class DecodeJob:
     batch: bool = False
     threads: int | None = None
     problem: str | None = None
+    max_memory: int | None = None
 
     @property
     def label(self) -> str:
@@ -665,7 +668,11 @@ def decode_file(job: DecodeJob) -> dict:
     timings["validate"] = time.perf_counter() - t
 
     method = job.method or _default_method()
-    result = decoders.decode(left, samples, max_disp=job.max_disp, min_disp=job.min_disp, method=method)
+    try:
+        result = decoders.decode(left, samples, max_disp=job.max_disp, min_disp=job.min_disp, method=method,
+                                 max_memory=job.max_memory)
+    except MemoryLimitError as exc:
+        raise MemoryLimitError(exc.message, path=left_name) from None
     disparity = result.disparity
     timings.update(result.timings)
 

@@ -192,7 +192,7 @@ def check_inputs(left: np.ndarray, samples: SampleSet, *, min_disp: int, max_dis
         raise MismatchError(f"left image is {left.dtype} but the samples are {samples.dtype}")
     if max_disp <= min_disp:
         raise OptionError(f"--max-disp ({max_disp}) must be greater than --min-disp ({min_disp})")
-    if max_disp - min_disp >= w or abs(min_disp) >= w:
+    if max_disp - min_disp >= w or abs(min_disp) >= w or abs(max_disp) >= w:
         raise OptionError(f"disparity range [{min_disp}, {max_disp}] does not fit an image {w} pixels wide")
 
 
@@ -328,7 +328,8 @@ def _upsample_blocks(low: np.ndarray, sx: int, sy: int, h: int, w: int) -> np.nd
 
 
 def decode(left: np.ndarray, samples: SampleSet, *, max_disp: int, min_disp: int = 0,
-           method: str | None = None, params: DecoderParams | None = None) -> DecodeResult:
+           method: str | None = None, params: DecoderParams | None = None,
+           max_memory: int | None = None) -> DecodeResult:
     """Dense disparity of the left view from I1 and the right camera's samples.
 
     Parameters
@@ -343,10 +344,21 @@ def decode(left: np.ndarray, samples: SampleSet, *, max_disp: int, min_disp: int
         Decoder.  A sample set with stride 1 is always decoded as ``full``; a
         ``downsample`` sample file only as ``downsample``.
     params : DecoderParams, optional
+    max_memory : int, optional
+        Largest estimated peak memory allowed, in bytes (default:
+        :func:`stereobudget.limits.default_memory_limit`, 75 % of the available memory).
 
     Returns
     -------
     DecodeResult
+
+    Raises
+    ------
+    MismatchError, OptionError
+        Left image and samples disagree, or the disparity range does not fit.
+    MemoryLimitError
+        The estimate (:func:`stereobudget.limits.estimate_decode_memory`) exceeds
+        ``max_memory``; checked before any volume is allocated.
     """
     params = params or DecoderParams()
     method = method or DEFAULT_METHOD
@@ -355,6 +367,12 @@ def decode(left: np.ndarray, samples: SampleSet, *, max_disp: int, min_disp: int
     check_inputs(left, samples, min_disp=min_disp, max_disp=max_disp)
     if _is_full_grid(samples):
         method = "full"
+    from .limits import check_decode_memory
+    check_decode_memory(samples.height, samples.width, int(max_disp - min_disp + 1),
+                        "downsample" if samples.pattern.kind == "downsample" else method,
+                        max_memory=max_memory, stride_x=samples.pattern.stride_x,
+                        stride_y=samples.pattern.stride_y, sigma_s_per_stride=params.sigma_s_per_stride,
+                        sigma_r=params.sigma_r)
     timer = _Timer()
     num_disp = int(max_disp - min_disp + 1)
     with timer("prepare"):
