@@ -14,6 +14,8 @@ import sys
 
 import click
 
+from stereobudget.errors import OptionError
+
 from . import _common as common
 
 log = logging.getLogger("stereobudget")
@@ -70,3 +72,35 @@ def run_batch(jobs: list, fn, *, workers: int | None, scheduler: str | None, as_
         if total > 1:
             log.error("%d of %d file(s) failed", counts["failed"], total)
         sys.exit(1)
+
+
+def plan_encode(images, output: str, *, pattern, raw_size, pix_fmt, overwrite: bool):
+    """``(single_input, jobs)``: the one input of a single-file run, or the batch's jobs.
+
+    A single run (one input after expansion and an ``-o`` without template) keeps the
+    classic behaviour: the error's own exit code, no skipping of existing outputs.
+
+    Raises
+    ------
+    OptionError
+        Several inputs and an ``-o`` without a template, ``-`` among several inputs,
+        two inputs that would write the same file.
+    """
+    from stereobudget.batch import (IMAGE_EXTENSIONS, EncodeJob, check_distinct_outputs, expand_inputs,
+                                    expand_template, has_template)
+
+    templated = has_template(output, "-o")
+    inputs = expand_inputs(images, extensions=None if raw_size is not None else IMAGE_EXTENSIONS,
+                           what="raw frame" if raw_size is not None else "image")
+    if len(inputs) == 1 and not templated:
+        return inputs[0], None
+    if len(inputs) > 1 and not templated:
+        raise OptionError(f"{len(inputs)} inputs but -o {output!r} has no template; use e.g. "
+                          "-o 'out/{stem}.sbs' ({stem}, {name}, {parent} of each input)")
+    if "-" in inputs:
+        raise OptionError("'-' (standard input) works with a single input only")
+    jobs = [EncodeJob(source=name, output=expand_template(output, name, option="-o"), pattern=pattern,
+                      raw_size=raw_size, pix_fmt=pix_fmt, overwrite=overwrite, batch=True)
+            for name in inputs]
+    check_distinct_outputs(jobs, key=lambda job: [job.output])
+    return None, jobs

@@ -13,6 +13,7 @@ import click
 
 from stereobudget.errors import OptionError
 
+from . import _batch
 from . import _common as common
 
 log = logging.getLogger("stereobudget")
@@ -59,8 +60,10 @@ def _show_info(path, *, verify: bool) -> None:
 
 
 @click.command(context_settings={"help_option_names": ["-h", "--help"]})
-@click.argument("image", required=False, metavar="RIGHT_IMAGE")
-@click.option("-o", "--output", metavar="OUT.sbs", help="Sample file to write ('-' = stdout).")
+@click.argument("images", nargs=-1, metavar="RIGHT_IMAGE...")
+@click.option("-o", "--output", metavar="OUT.sbs",
+              help="Sample file to write ('-' = stdout); with several inputs a template such as "
+                   "'out/{stem}.sbs' ({stem}, {name}, {parent} of each input).")
 @click.option("--stride", type=_U16, default=5, show_default=True,
               help="Grid spacing in pixels, both directions (epsilon ~ 1/stride^2).")
 @click.option("--stride-x", type=_U16, default=None, help="Horizontal spacing (overrides --stride).")
@@ -82,13 +85,14 @@ def _show_info(path, *, verify: bool) -> None:
               help="Validate a sample file and print its header as one JSON line; no encoding.")
 @click.option("--header-only", is_flag=True,
               help="With --info: check the header and file size but not the payload checksum.")
+@_batch.jobs_options
 @common.overwrite_option
 @common.json_option
 @common.verbosity_options
 @common.version_option
 @common.handle_errors
-def encode_command(image, output, stride, stride_x, stride_y, offset, pattern, seed, raw_size,
-                   pix_fmt, info_file, header_only, overwrite, as_json):
+def encode_command(images, output, stride, stride_x, stride_y, offset, pattern, seed, raw_size,
+                   pix_fmt, info_file, header_only, jobs, scheduler, overwrite, as_json):
     """Sample RIGHT_IMAGE ('-' = stdin) on a sparse grid and write the .sbs sample file.
 
     \b
@@ -98,15 +102,20 @@ def encode_command(image, output, stride, stride_x, stride_y, offset, pattern, s
       sb-encode - -o - < right.png > right.sbs         # stdin to stdout
       sb-encode frame.raw --raw 640x480 --pix-fmt bgr24 -o frame.sbs
       sb-encode --info right.sbs                       # header as JSON
+      sb-encode 'cam_r/*.png' -o 'out/{stem}.sbs' -j 2 # many files (quoted glob)
+
+    With several inputs (files, folders, quoted globs) or a templated -o, an output
+    newer than its input is skipped (a rerun resumes), a stale one is redone;
+    --overwrite redoes all.  Exit status 1 if any file failed.
     """
     if info_file is not None:
-        if image is not None or output is not None:
+        if images or output is not None:
             raise OptionError("--info takes only the sample file; drop RIGHT_IMAGE and -o")
         _show_info(info_file, verify=not header_only)
         return
     if header_only:
         raise OptionError("--header-only only applies to --info")
-    if image is None:
+    if not images:
         raise OptionError("missing RIGHT_IMAGE (use '-' for standard input); see --help")
     if output is None:
         raise OptionError("missing -o/--output (use '-o -' for standard output)")
@@ -123,6 +132,13 @@ def encode_command(image, output, stride, stride_x, stride_y, offset, pattern, s
             raise OptionError(f"--raw: {exc}") from None
     sampling = build_pattern(pattern=pattern, stride=stride, stride_x=stride_x, stride_y=stride_y,
                              offset=offset, seed=seed)
+
+    image, batch_jobs = _batch.plan_encode(images, output, pattern=sampling, raw_size=size, pix_fmt=pix_fmt,
+                                           overwrite=overwrite)
+    if batch_jobs is not None:
+        from stereobudget.batch import encode_job
+        _batch.run_batch(batch_jobs, encode_job, workers=jobs, scheduler=scheduler, as_json=as_json)
+        return
 
     from stereobudget.container import encode_file
     report = encode_file(image, output, pattern=sampling, raw_size=size, pix_fmt=pix_fmt,

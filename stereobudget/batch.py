@@ -61,7 +61,7 @@ def _looks_like_glob(text: str) -> bool:
     return any(ch in _GLOB_CHARS for ch in text)
 
 
-def expand_inputs(arguments: Iterable[str], *, extensions: tuple[str, ...] = IMAGE_EXTENSIONS,
+def expand_inputs(arguments: Iterable[str], *, extensions: tuple[str, ...] | None = IMAGE_EXTENSIONS,
                   what: str = "image") -> list[str]:
     """Expand input arguments into a list of file names, in a stable order.
 
@@ -72,8 +72,8 @@ def expand_inputs(arguments: Iterable[str], *, extensions: tuple[str, ...] = IMA
         its name contains ``*`` or ``[``), a folder (its files with one of
         ``extensions``, sorted, hidden files excluded), or a glob pattern (expanded
         here, ``**`` included, so a quoted pattern works the same in every shell).
-    extensions : tuple of str
-        Lower-case extensions listed from folders.
+    extensions : tuple of str or None
+        Lower-case extensions listed from folders (None: every file).
     what : str
         What the files are, for messages ("image", "sample file").
 
@@ -96,10 +96,10 @@ def expand_inputs(arguments: Iterable[str], *, extensions: tuple[str, ...] = IMA
         elif os.path.isdir(argument):
             found = sorted(str(p) for p in Path(argument).iterdir()
                            if p.is_file() and not p.name.startswith(".")
-                           and p.suffix.lower() in extensions)
+                           and (extensions is None or p.suffix.lower() in extensions))
             if not found:
-                raise OptionError(f"folder {argument!r} holds no {what} "
-                                  f"({', '.join(extensions)})")
+                kinds = f" ({', '.join(extensions)})" if extensions else ""
+                raise OptionError(f"folder {argument!r} holds no {what}{kinds}")
         elif os.path.exists(argument) or not _looks_like_glob(argument):
             found = [argument]
         else:
