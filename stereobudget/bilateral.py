@@ -93,7 +93,7 @@ def _hat(f, n):
 
 
 @njit(cache=True)
-def _splat_points(rows, cols, values, guide, inv_cs, inv_cr, grid_val, grid_w):
+def _splat_points(rows, cols, values, guide, inv_cs, inv_cr, grid_val, grid_w, occupied):
     """Splat points carrying all K channels at shared positions (one mask channel)."""
     gy_n, gx_n, gz_n, k_n = grid_val.shape
     for k in range(rows.shape[0]):
@@ -112,11 +112,12 @@ def _splat_points(rows, cols, values, guide, inv_cs, inv_cr, grid_val, grid_w):
                     for ch in range(k_n):
                         grid_val[y0 + a, x0 + b, z0 + c, ch] += wgt * values[k, ch]
                     grid_w[y0 + a, x0 + b, z0 + c, 0] += wgt
+                    occupied[y0 + a, x0 + b, z0 + c] = True
 
 
 @njit(cache=True)
 def _splat_sparse_dsi(rows, cols, right_values, left, guide, min_disp, truncation,
-                      inv_cs, inv_cr, grid_val, grid_w):
+                      inv_cs, inv_cr, grid_val, grid_w, occupied):
     """Splat Eq. (2): right sample k at (row, col) meets left pixel (row, col + d) in layer d."""
     gy_n, gx_n, gz_n, num_disp = grid_val.shape
     w = left.shape[1]
@@ -139,45 +140,104 @@ def _splat_sparse_dsi(rows, cols, right_values, left, guide, min_disp, truncatio
                         wgt = wy * wx * wz
                         grid_val[y0 + a, x0 + b, z0 + c, i] += wgt * cost
                         grid_w[y0 + a, x0 + b, z0 + c, i] += wgt
+                        occupied[y0 + a, x0 + b, z0 + c] = True
 
 
 @njit(cache=True, parallel=True)
-def _blur_axis(src, dst, kernel, axis):
-    """Zero-boundary 1-D convolution of a (GY, GX, GZ, K) grid along ``axis`` (0, 1 or 2)."""
-    n0, n1, n2, k_n = src.shape
+def _blur_rows(src, dst, kernel, occupied, occupied_out):
+    """Zero-boundary 1-D convolution along axis 1 of an (A, N, B, K) array, skipping empty rows.
+
+    ``occupied[a, n, b]`` is False where the row ``src[a, n, b, :]`` is known to be all
+    zeros; those taps are skipped, and ``occupied_out`` records which output rows received
+    anything.  Before the last blur pass most grid cells are empty (a 2-sigma cell holds
+    only the few intensities present near it), so this does a fraction of the work of a
+    dense convolution.  The kept taps are added in kernel order starting from the first
+    one, which is bit-for-bit the dense sum: the skipped terms are exact zeros.
+    """
+    a_n, n_n, b_n, k_n = src.shape
     r = kernel.shape[0] // 2
-    n_axis = src.shape[axis]
-    for i0 in prange(n0):
-        for i1 in range(n1):
-            for i2 in range(n2):
+    for job in prange(a_n * n_n):
+        a = job // n_n
+        n = job % n_n
+        for b in range(b_n):
+            out = dst[a, n, b]
+            started = False
+            for t in range(-r, r + 1):
+                j = np.int64(n) + np.int64(t)
+                if j < 0 or j >= n_n or not occupied[a, j, b]:
+                    continue
+                kw = kernel[t + r]
+                row = src[a, j, b]
+                if started:
+                    for ch in range(k_n):
+                        out[ch] += kw * row[ch]
+                else:
+                    for ch in range(k_n):
+                        out[ch] = kw * row[ch]
+                    started = True
+            if not started:
                 for ch in range(k_n):
-                    dst[i0, i1, i2, ch] = 0.0
-                # int64 everywhere: mixing the prange index type with int64 would give float64.
-                idx = np.int64(i0) if axis == 0 else (np.int64(i1) if axis == 1 else np.int64(i2))
-                for t in range(-r, r + 1):
-                    j = idx + np.int64(t)
-                    if j < 0 or j >= n_axis:
-                        continue
-                    kw = kernel[t + r]
-                    if axis == 0:
-                        for ch in range(k_n):
-                            dst[i0, i1, i2, ch] += kw * src[j, i1, i2, ch]
-                    elif axis == 1:
-                        for ch in range(k_n):
-                            dst[i0, i1, i2, ch] += kw * src[i0, j, i2, ch]
-                    else:
-                        for ch in range(k_n):
-                            dst[i0, i1, i2, ch] += kw * src[i0, i1, j, ch]
+                    out[ch] = 0.0
+            occupied_out[a, n, b] = started
 
 
-def _blur_grid(grid: np.ndarray, geom: GridGeometry) -> np.ndarray:
+def _axis_view(array: np.ndarray, axis: int, merge_tail: bool = False) -> np.ndarray:
+    """(GY, GX, GZ, ...) -> (A, N, B, ...) with the blur axis as axis 1 (a view, no copy).
+
+    ``merge_tail`` folds B and the channels into one contiguous run (B becomes 1).
+    """
+    gy, gx, gz = array.shape[:3]
+    rest = array.shape[3:]
+    shape = {0: (1, gy, gx * gz), 1: (gy, gx, gz), 2: (gy * gx, gz, 1)}[axis]
+    if merge_tail:
+        return array.reshape(shape[:2] + (1, shape[2] * int(np.prod(rest, dtype=np.int64))))
+    return array.reshape(shape + rest)
+
+
+#: Below this many channels a grid row is too short for skipping empty rows to pay:
+#: spatial blurs then run densely over whole contiguous slabs.
+_SPARSE_BLUR_MIN_CHANNELS = 16
+
+
+def _blur_grid(grid: np.ndarray, geom: GridGeometry, occupied: np.ndarray) -> np.ndarray:
+    """Separable Gaussian blur of a C-contiguous (GY, GX, GZ, K) grid; ``occupied`` (GY, GX, GZ) bool
+    marks the cells the splat touched (all others are zero)."""
     tmp = np.empty_like(grid)
     ks = _gaussian_kernel(geom.blur_s)
     kr = _gaussian_kernel(geom.blur_r)
-    _blur_axis(grid, tmp, ks, 0)
-    _blur_axis(tmp, grid, ks, 1)
-    _blur_axis(grid, tmp, kr, 2)
+    if grid.shape[3] < _SPARSE_BLUR_MIN_CHANNELS:
+        # Few channels: treat every spatial pass as dense rows of GZ * K floats.
+        for axis, src, dst, kernel in ((0, grid, tmp, ks), (1, tmp, grid, ks), (2, grid, tmp, kr)):
+            merge = axis < 2
+            src_v, dst_v = _axis_view(src, axis, merge), _axis_view(dst, axis, merge)
+            everywhere = np.ones(src_v.shape[:3], np.bool_)
+            _blur_rows(src_v, dst_v, kernel, everywhere, np.empty_like(everywhere))
+        return tmp
+    occupied_y = np.empty_like(occupied)
+    occupied_xy = np.empty_like(occupied)
+    occupied_xyz = np.empty_like(occupied)
+    _blur_rows(_axis_view(grid, 0), _axis_view(tmp, 0), ks, _axis_view(occupied, 0), _axis_view(occupied_y, 0))
+    _blur_rows(_axis_view(tmp, 1), _axis_view(grid, 1), ks, _axis_view(occupied_y, 1), _axis_view(occupied_xy, 1))
+    _blur_rows(_axis_view(grid, 2), _axis_view(tmp, 2), kr, _axis_view(occupied_xy, 2),
+               _axis_view(occupied_xyz, 2))
     return tmp
+
+
+@njit(cache=True, inline="always")
+def _add_corners(rows, corner_index, corner_weight, n, acc):
+    """acc[:n] = sum over the 8 corners of weight * row, corners added in a fixed order.
+
+    One corner per loop keeps each loop to two streams, which the compiler vectorises.
+    """
+    first = rows[corner_index[0]]
+    w0 = corner_weight[0]
+    for i in range(n):
+        acc[i] = w0 * first[i]
+    for c in range(1, 8):
+        row = rows[corner_index[c]]
+        wc = corner_weight[c]
+        for i in range(n):
+            acc[i] += wc * row[i]
 
 
 @njit(cache=True, parallel=True)
@@ -188,30 +248,31 @@ def _slice_normalised(guide, grid_val, grid_w, spatial_val, spatial_w, inv_cs, i
     gy_n, gx_n, gz_n, k_n = grid_val.shape
     n_out = out.shape[2]
     kw_n = grid_w.shape[3]
+    val_rows = grid_val.reshape(gy_n * gx_n * gz_n, k_n)
+    w_rows = grid_w.reshape(gy_n * gx_n * gz_n, kw_n)
+    one = np.float32(1.0)
     for y in prange(h):
         den = np.empty(kw_n, dtype=np.float32)
+        corner_index = np.empty(8, dtype=np.int64)
+        corner_weight = np.empty(8, dtype=np.float32)
         y0, ty = _hat(y * inv_cs, gy_n)
         for x in range(w):
             x0, tx = _hat(x * inv_cs, gx_n)
             z0, tz = _hat(guide[y, x] * inv_cr, gz_n)
-            o = out[y, x]
-            for i in range(n_out):
-                o[i] = 0.0
-            for j in range(kw_n):
-                den[j] = 0.0
+            c = 0
+            # float32 hat weights: a float64 weight would turn every multiply-add below into float64.
             for a in range(2):
-                wy = ty if a else 1 - ty
+                wy = ty if a else one - ty
                 for b in range(2):
-                    wx = tx if b else 1 - tx
-                    for c in range(2):
-                        wz = tz if c else 1 - tz
-                        wgt = wy * wx * wz
-                        gv = grid_val[y0 + a, x0 + b, z0 + c]
-                        gw = grid_w[y0 + a, x0 + b, z0 + c]
-                        for i in range(n_out):
-                            o[i] += wgt * gv[i]
-                        for j in range(kw_n):
-                            den[j] += wgt * gw[j]
+                    wx = tx if b else one - tx
+                    for e in range(2):
+                        wz = tz if e else one - tz
+                        corner_weight[c] = wy * wx * wz
+                        corner_index[c] = ((y0 + a) * gx_n + (x0 + b)) * gz_n + (z0 + e)
+                        c += 1
+            o = out[y, x]
+            _add_corners(val_rows, corner_index, corner_weight, n_out, o)
+            _add_corners(w_rows, corner_index, corner_weight, kw_n, den)
             for i in range(n_out):
                 d = den[channel_map[i]]
                 if d > eps:
@@ -274,10 +335,11 @@ def sparse_joint_bilateral(guide: np.ndarray, rows: np.ndarray, cols: np.ndarray
     k = values.shape[1]
     grid_val = np.zeros(geom.shape + (k,), np.float32)
     grid_w = np.zeros(geom.shape + (1,), np.float32)
+    occupied = np.zeros(geom.shape, np.bool_)
     _splat_points(np.asarray(rows, np.int64), np.asarray(cols, np.int64), values, guide,
-                  1.0 / geom.cell_s, 1.0 / geom.cell_r, grid_val, grid_w)
-    grid_val = _blur_grid(grid_val, geom)
-    grid_w = _blur_grid(grid_w, geom)
+                  1.0 / geom.cell_s, 1.0 / geom.cell_r, grid_val, grid_w, occupied)
+    grid_val = _blur_grid(grid_val, geom, occupied)
+    grid_w = _blur_grid(grid_w, geom, occupied)
     density = len(rows) / float(h * w)
     return _normalised_slice(guide, grid_val, grid_w, geom, density, missing_value,
                              np.zeros(k, np.int64))
@@ -316,11 +378,13 @@ def filled_sparse_dsi(left: np.ndarray, guide: np.ndarray, rows: np.ndarray, col
                          cells_per_sigma_s=cells_per_sigma_s, cells_per_sigma_r=cells_per_sigma_r)
     grid_val = np.zeros(geom.shape + (num_disp,), np.float32)
     grid_w = np.zeros(geom.shape + (num_disp,), np.float32)
+    occupied = np.zeros(geom.shape, np.bool_)
     _splat_sparse_dsi(np.asarray(rows, np.int64), np.asarray(cols, np.int64),
                       np.ascontiguousarray(right_values, np.float32), left, guide, int(min_disp),
-                      np.float32(truncation), 1.0 / geom.cell_s, 1.0 / geom.cell_r, grid_val, grid_w)
-    grid_val = _blur_grid(grid_val, geom)
-    grid_w = _blur_grid(grid_w, geom)
+                      np.float32(truncation), 1.0 / geom.cell_s, 1.0 / geom.cell_r, grid_val, grid_w,
+                      occupied)
+    grid_val = _blur_grid(grid_val, geom, occupied)
+    grid_w = _blur_grid(grid_w, geom, occupied)
     density = len(rows) / float(h * w)
     return _normalised_slice(guide, grid_val, grid_w, geom, density, truncation,
                              np.arange(num_disp, dtype=np.int64))

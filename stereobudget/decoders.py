@@ -269,12 +269,13 @@ def _decode_hybrid(left_f, guide, samples, tree, *, min_disp, num_disp, params, 
         # Both DSIs are brought to [0, 1] by their largest possible value before mixing.
         dense_max = (1 - params.grad_weight) * params.full_truncation + params.grad_weight * params.grad_truncation
         cost *= np.float32(weight / params.truncation)
-        cost += np.float32((1.0 - weight) / dense_max) * cost_lp
-        del cost_lp
+        # In place (no volume-sized temporary); cost_lp is then recycled for the right view.
+        cost_lp *= np.float32((1.0 - weight) / dense_max)
+        cost += cost_lp
     with timer("tree"):
         right_tree = _tree.build_tree(right_lp, sigma=params.tree_sigma, median_size=params.tree_median)
     disp, _ = left_right_refined_disparity(cost, left_tree=tree, right_tree=right_tree, min_disp=min_disp,
-                                           params=params, timer=timer)
+                                           params=params, timer=timer, scratch=cost_lp)
     return disp
 
 

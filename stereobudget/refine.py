@@ -23,13 +23,34 @@ from .cost import full_dsi
 
 
 @njit(cache=True, parallel=True)
-def right_view_cost(left_cost, min_disp):
+def _right_view_cost_into(left_cost, min_disp, out):
+    h, w, nd = left_cost.shape
+    for y in prange(h):
+        for x in range(w):
+            # Layers i with x + min_disp + i inside [0, w) form one run; clamp only outside it,
+            # so the main loop has no branches.
+            lo = min(max(-(x + min_disp), 0), nd)
+            hi = max(min(w - (x + min_disp), nd), lo)
+            o = out[y, x]
+            for i in range(lo):
+                o[i] = left_cost[y, 0, i]
+            base = x + min_disp
+            for i in range(lo, hi):
+                o[i] = left_cost[y, base + i, i]
+            for i in range(hi, nd):
+                o[i] = left_cost[y, w - 1, i]
+    return out
+
+
+def right_view_cost(left_cost, min_disp, *, out=None):
     """Cost volume of the right view from the left one: ``C_R(x, d) = C_L(x + d, d)``.
 
     Parameters
     ----------
     left_cost : ndarray, float32 (H, W, D)
     min_disp : int
+    out : ndarray, float32 (H, W, D), optional
+        Buffer to write into (must not be ``left_cost``); a fresh one by default.
 
     Returns
     -------
@@ -37,18 +58,9 @@ def right_view_cost(left_cost, min_disp):
         Right pixels whose partner ``x + d`` lies outside the left image take the cost of
         the last column (border replication, as for the left view).
     """
-    h, w, nd = left_cost.shape
-    out = np.empty_like(left_cost)
-    for y in prange(h):
-        for x in range(w):
-            for i in range(nd):
-                xl = x + min_disp + i
-                if xl >= w:
-                    xl = w - 1
-                elif xl < 0:
-                    xl = 0
-                out[y, x, i] = left_cost[y, xl, i]
-    return out
+    if out is None:
+        out = np.empty_like(left_cost)
+    return _right_view_cost_into(left_cost, int(min_disp), out)
 
 
 @njit(cache=True, parallel=True)
@@ -66,19 +78,30 @@ def left_right_stable(disp_left, disp_right, tolerance):
 
 
 @njit(cache=True, parallel=True)
-def _refinement_cost(disp, stable, min_disp, num_disp):
-    h, w = disp.shape
-    out = np.zeros((h, w, num_disp), dtype=np.float32)
+def _refinement_cost_into(disp, stable, min_disp, out):
+    h, w, num_disp = out.shape
     for y in prange(h):
         for x in range(w):
+            row = out[y, x]
             if stable[y, x]:
                 d = disp[y, x]
                 for i in range(num_disp):
-                    out[y, x, i] = abs(min_disp + i - d)
+                    # float32 subtraction: the exact difference rounded once, as in float64.
+                    row[i] = abs(np.float32(min_disp + i) - d)
+            else:
+                for i in range(num_disp):
+                    row[i] = 0.0
     return out
 
 
-def nonlocal_refinement(disp: np.ndarray, stable: np.ndarray, tree, *, min_disp: int, num_disp: int):
+def _refinement_cost(disp, stable, min_disp, num_disp, out=None):
+    if out is None:
+        out = np.empty(disp.shape + (int(num_disp),), dtype=np.float32)
+    return _refinement_cost_into(disp, stable, int(min_disp), out)
+
+
+def nonlocal_refinement(disp: np.ndarray, stable: np.ndarray, tree, *, min_disp: int, num_disp: int,
+                        out: np.ndarray | None = None):
     """Propagate stable disparities to unstable pixels along the tree (Yang's refinement).
 
     Parameters
@@ -87,18 +110,21 @@ def nonlocal_refinement(disp: np.ndarray, stable: np.ndarray, tree, *, min_disp:
     stable : ndarray, bool (H, W)
     tree : stereobudget.tree.MinimumSpanningTree
         Tree of the left image.
+    out : ndarray, float32 (H, W, num_disp), optional
+        Scratch volume for the refinement cost (a dead cost volume can be recycled:
+        reusing it saves the page faults of a fresh allocation).
 
     Returns
     -------
     ndarray, float32 (H, W)
     """
     from .decoders import winner_take_all
-    cost = _refinement_cost(disp.astype(np.float32), stable, int(min_disp), int(num_disp))
+    cost = _refinement_cost(disp.astype(np.float32), stable, int(min_disp), int(num_disp), out)
     cost = _tree.aggregate(cost, tree, out=cost)
     return winner_take_all(cost, int(min_disp))
 
 
-def left_right_refined_disparity(cost, *, left_tree, right_tree, min_disp, params, timer):
+def left_right_refined_disparity(cost, *, left_tree, right_tree, min_disp, params, timer, scratch=None):
     """Aggregate a left-view cost volume, check it against the right view, refine (Yang).
 
     Parameters
@@ -111,6 +137,9 @@ def left_right_refined_disparity(cost, *, left_tree, right_tree, min_disp, param
     params : stereobudget.decoders.DecoderParams
     timer : callable
         ``timer(stage)`` context manager that records stage times.
+    scratch : ndarray, float32 (H, W, D), optional
+        A volume the caller no longer needs; it receives the right-view cost, so only
+        ``cost`` and ``scratch`` are alive during the check and refinement.
 
     Returns
     -------
@@ -121,16 +150,17 @@ def left_right_refined_disparity(cost, *, left_tree, right_tree, min_disp, param
     from .decoders import winner_take_all, median_filter_disparity
     num_disp = cost.shape[2]
     with timer("aggregate"):
-        cost_r = right_view_cost(cost, int(min_disp))
+        cost_r = right_view_cost(cost, int(min_disp), out=scratch)
         cost = _tree.aggregate(cost, left_tree, out=cost)
         cost_r = _tree.aggregate(cost_r, right_tree, out=cost_r)
     with timer("wta"):
         disp_l = winner_take_all(cost, int(min_disp))
         disp_r = winner_take_all(cost_r, int(min_disp))
-    del cost, cost_r
+    del cost_r
     with timer("refine"):
         stable = left_right_stable(disp_l, disp_r, np.float32(1.0))
-        disp = nonlocal_refinement(disp_l, stable, left_tree, min_disp=min_disp, num_disp=num_disp)
+        # The left volume is dead after its winner was taken: it holds the refinement cost.
+        disp = nonlocal_refinement(disp_l, stable, left_tree, min_disp=min_disp, num_disp=num_disp, out=cost)
         disp = median_filter_disparity(disp, params.median_size)
     return disp, stable
 
