@@ -412,7 +412,9 @@ def _curve_table(title: str, record: dict, strides, *, value=mean_over_scenes, n
 def fig5d_markdown(record: dict, strides) -> list[str]:
     lines = ["### Fig. 5(d) — Hybrid vs full-pair stereo on compressed I2 at the same bytes", "",
              "Mean bad (> 1, %) on nonocc; the codec gets the sample file's size (header included), "
-             "the largest setting that fits.", "",
+             "the largest setting that fits (binary search; settings per scene in brackets). JPEG 2000 is "
+             "OpenCV's OpenJPEG encoder, whose `IMWRITE_JPEG2000_COMPRESSION_X1000` is a target rate, so "
+             "the setting hardly depends on the scene.", "",
              "| curve | " + " | ".join(f"{percent(s):.1f} % (s={s})" for s in strides) + " |",
              "|---" * (1 + len(strides)) + "|"]
     lines.append("| budget (bytes, mean) | " + " | ".join(
@@ -465,7 +467,8 @@ def bars_markdown(bars: dict, n_scenes: int) -> list[str]:
     lines += [f"| Hybrid 11.1 % within 1.5x of our full pair ({avg}, bad %) | {fmt(h11)} | "
               f"{fmt(full)} (x1.5 = {fmt(None if full is None else 1.5 * full)}) | {within} |", ""]
     lines += ["SGBM nonocc bad % by block size: " + ", ".join(
-        f"{b}: {fmt(v)}" for b, v in bars["sgbm_nonocc"].items()) + ".", ""]
+        f"{b}: {fmt(v, 3)}" for b, v in bars["sgbm_nonocc"].items()) + " (mode SGBM_3WAY, P1 = 8 cn b², "
+        "P2 = 32 cn b², holes filled from the nearest valid pixel on the left, else on the right).", ""]
     return lines
 
 
@@ -542,8 +545,8 @@ def _jsonable(obj):
         return [_jsonable(v) for v in obj]
     if isinstance(obj, (np.floating, np.integer)):
         return obj.item()
-    if isinstance(obj, float) and math.isnan(obj):
-        return None
+    if isinstance(obj, float):
+        return None if math.isnan(obj) else round(obj, 4)
     return obj
 
 
