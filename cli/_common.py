@@ -100,7 +100,16 @@ def make_main(command: click.Command, name: str):
             signal.signal(signal.SIGTERM, _raise_keyboard_interrupt)
         except ValueError:      # not in the main thread (embedded use): keep the default
             pass
-        return command.main(args=argv, prog_name=name)
+        try:
+            return command.main(args=argv, prog_name=name, standalone_mode=False)
+        except click.ClickException as exc:
+            # Usage errors on one line like every other error (click's own display takes four).
+            hint = f" (see {name} --help)" if isinstance(exc, click.UsageError) else ""
+            click.echo(f"{name}: error: {' '.join(exc.format_message().split())}{hint}", err=True)
+            sys.exit(exc.exit_code)
+        except click.Abort:      # Ctrl-C / SIGTERM while the arguments are parsed
+            click.echo(f"{name}: interrupted", err=True)
+            sys.exit(EXIT_INTERRUPTED)
 
     main.__doc__ = f"Entry point of ``{name}``."
     return main
