@@ -46,7 +46,8 @@ def test_quick_reproduction_on_synthetic_scenes(script, tmp_path):
         assert (tmp_path / png).read_bytes()[:4] == b"\x89PNG"
     stored = json.loads((tmp_path / "results.json").read_text())
     grid = stored["tables"]["grid"]["tsukuba"]
-    assert grid["nonocc"]["bad"] == pytest.approx(results["tables"]["grid"]["tsukuba"]["nonocc"]["bad"])
+    # results.json keeps 4 decimals
+    assert grid["nonocc"]["bad"] == pytest.approx(results["tables"]["grid"]["tsukuba"]["nonocc"]["bad"], abs=1e-4)
     # Easy textured planes: the sparse decoder and the full pair must both be accurate.
     assert grid["nonocc"]["bad"] < 10.0
     assert script.mean_over_scenes(results["fig5c"]["Full pair"]) < 5.0
