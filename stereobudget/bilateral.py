@@ -30,7 +30,7 @@ from dataclasses import dataclass
 import numpy as np
 from numba import njit, prange
 
-from .cost import pixel_cost
+from .cost import pixel_cost, sparse_pair_cost
 
 
 @dataclass(frozen=True)
@@ -116,8 +116,8 @@ def _splat_points(rows, cols, values, guide, inv_cs, inv_cr, grid_val, grid_w, o
 
 
 @njit(cache=True)
-def _splat_sparse_dsi(rows, cols, right_values, left, guide, min_disp, truncation,
-                      inv_cs, inv_cr, grid_val, grid_w, occupied):
+def _splat_sparse_dsi(rows, cols, right_values, right_steps, left, guide, min_disp, truncation,
+                      step_spacing, step_weight, step_truncation, inv_cs, inv_cr, grid_val, grid_w, occupied):
     """Splat Eq. (2): right sample k at (row, col) meets left pixel (row, col + d) in layer d."""
     gy_n, gx_n, gz_n, num_disp = grid_val.shape
     w = left.shape[1]
@@ -128,7 +128,11 @@ def _splat_sparse_dsi(rows, cols, right_values, left, guide, min_disp, truncatio
             x = cols[k] + min_disp + i
             if x < 0 or x >= w:
                 continue
-            cost = pixel_cost(left[y, x], right_values[k], truncation)
+            left_step = np.float32(np.nan)
+            if step_weight > 0 and x + step_spacing < w:
+                left_step = guide[y, x + step_spacing] - guide[y, x]
+            cost = sparse_pair_cost(left[y, x], right_values[k], left_step, right_steps[k], truncation,
+                                    step_weight, step_truncation)
             x0, tx = _hat(x * inv_cs, gx_n)
             z0, tz = _hat(guide[y, x] * inv_cr, gz_n)
             for a in range(2):
@@ -348,6 +352,8 @@ def sparse_joint_bilateral(guide: np.ndarray, rows: np.ndarray, cols: np.ndarray
 def filled_sparse_dsi(left: np.ndarray, guide: np.ndarray, rows: np.ndarray, cols: np.ndarray,
                       right_values: np.ndarray, *, min_disp: int, num_disp: int,
                       sigma_s: float, sigma_r: float, truncation: float,
+                      right_steps: np.ndarray | None = None, step_spacing: int = 1,
+                      step_weight: float = 0.0, step_truncation: float = 5.0,
                       cells_per_sigma_s: float = 2.0, cells_per_sigma_r: float = 2.0) -> np.ndarray:
     """The paper's filled sparse DSI: Eq. (2) at the samples, spread by Eq. (3) to every pixel.
 
@@ -367,6 +373,13 @@ def filled_sparse_dsi(left: np.ndarray, guide: np.ndarray, rows: np.ndarray, col
         Filter sigmas (the paper: ``3 * stride`` and 20).
     truncation : float
         Cost truncation (see :func:`stereobudget.cost.pixel_cost`).
+    right_steps : ndarray, float32 (n,), optional
+        Gray difference to the sample ``step_spacing`` pixels to the right (NaN: none);
+        enables the step term of :func:`stereobudget.cost.sparse_pair_cost`.
+    step_spacing : int
+        Column spacing of the steps (the grid stride).
+    step_weight, step_truncation : float
+        Weight and truncation (gray levels) of the step term.
 
     Returns
     -------
@@ -379,9 +392,14 @@ def filled_sparse_dsi(left: np.ndarray, guide: np.ndarray, rows: np.ndarray, col
     grid_val = np.zeros(geom.shape + (num_disp,), np.float32)
     grid_w = np.zeros(geom.shape + (num_disp,), np.float32)
     occupied = np.zeros(geom.shape, np.bool_)
+    if right_steps is None:
+        right_steps = np.full(len(rows), np.nan, np.float32)
+        step_weight = 0.0
     _splat_sparse_dsi(np.asarray(rows, np.int64), np.asarray(cols, np.int64),
-                      np.ascontiguousarray(right_values, np.float32), left, guide, int(min_disp),
-                      np.float32(truncation), 1.0 / geom.cell_s, 1.0 / geom.cell_r, grid_val, grid_w,
+                      np.ascontiguousarray(right_values, np.float32),
+                      np.ascontiguousarray(right_steps, np.float32), left, guide, int(min_disp),
+                      np.float32(truncation), int(step_spacing), np.float32(step_weight),
+                      np.float32(step_truncation), 1.0 / geom.cell_s, 1.0 / geom.cell_r, grid_val, grid_w,
                       occupied)
     grid_val = _blur_grid(grid_val, geom, occupied)
     grid_w = _blur_grid(grid_w, geom, occupied)

@@ -55,6 +55,31 @@ def pixel_cost(left_pixel, right_pixel, truncation):
     return min(acc, truncation)
 
 
+@njit(cache=True, inline="always")
+def sparse_pair_cost(left_pixel, right_pixel, left_step, right_step, truncation, step_weight, step_truncation):
+    """Eq. (2) with a gradient term that sparse samples still support.
+
+    Two samples ``s`` pixels apart on a row of I2 give the difference
+    ``right_step = I2(x + s) - I2(x)`` exactly; I1 gives ``left_step`` over the same
+    spacing.  Comparing them is Yang's gradient term at the sampling scale, and it is
+    free of aliasing because both sides measure the same quantity.  Both terms are
+    brought to ``[0, truncation]`` before mixing; where no step exists (NaN: last sample
+    of a row, non-grid patterns) the colour term is used alone.
+    """
+    colour = pixel_cost(left_pixel, right_pixel, truncation)
+    if step_weight <= 0 or np.isnan(left_step) or np.isnan(right_step):
+        return colour
+    step = min(abs(left_step - right_step), step_truncation) * (truncation / step_truncation)
+    return (1 - step_weight) * colour + step_weight * step
+
+
+def sample_row_steps(lattice_gray: np.ndarray) -> np.ndarray:
+    """``I2(x + s) - I2(x)`` between row neighbours of a (rows, cols) sample lattice; NaN in the last column."""
+    steps = np.full(lattice_gray.shape, np.nan, np.float32)
+    steps[:, :-1] = lattice_gray[:, 1:] - lattice_gray[:, :-1]
+    return steps
+
+
 @njit(cache=True, parallel=True)
 def _full_dsi(left, right, left_grad, right_grad, min_disp, num_disp, truncation,
               grad_truncation, grad_weight, out):

@@ -27,7 +27,8 @@ import numpy as np
 from numba import njit, prange
 
 from .container import SampleSet
-from .cost import DEFAULT_TRUNCATION, full_dsi, to_float_image, to_gray
+from .cost import DEFAULT_TRUNCATION, full_dsi, sample_row_steps, to_float_image, to_gray
+from .sampling import grid_shape
 from .bilateral import filled_sparse_dsi
 from .errors import MismatchError, OptionError
 from . import tree as _tree
@@ -73,6 +74,10 @@ class DecoderParams:
         units of the stride.  0.5 puts the Gaussian's response at the samples' Nyquist
         frequency 1/(2 s) at exp(-pi^2 / 8) = 29 % (0.7 -> 9 % suppresses aliases better
         but blurs away the detail the dense DSI is for; docs/results.md has the sweep).
+    step_weight, step_truncation : float
+        Sparse DSI: weight and truncation (gray levels) of the difference between row
+        neighbours of the sample grid compared with I1's difference over the same spacing
+        (:func:`stereobudget.cost.sparse_pair_cost`); the sweep in docs/results.md.
     hybrid_sparse_weight : float or None
         Hybrid: weight of the Sparse DSI in the mean (the interpolated DSI gets 1 - w).
         ``None``: chosen from the stride by :func:`hybrid_weight`.
@@ -88,6 +93,8 @@ class DecoderParams:
     grad_weight: float = 0.89
     median_size: int = 3
     lowpass_per_stride: float = 0.5
+    step_weight: float = 0.4
+    step_truncation: float = 5.0
     hybrid_sparse_weight: float | None = None
 
 
@@ -223,9 +230,17 @@ def hybrid_weight(stride: float) -> float:
 
 def _sparse_filled_cost(left_f, guide, samples, *, min_disp, num_disp, params):
     rows, cols = samples.positions()
-    return filled_sparse_dsi(left_f, guide, rows, cols, _sample_values_f32(samples), min_disp=min_disp,
+    values = _sample_values_f32(samples)
+    steps = None
+    if samples.pattern.is_regular_grid and params.step_weight > 0:
+        # Row neighbours of a grid are stride_x pixels apart: their difference is exact data.
+        lattice = to_gray(values.reshape(grid_shape(samples.pattern, samples.height, samples.width) + (-1,)))
+        steps = sample_row_steps(lattice).ravel()
+    return filled_sparse_dsi(left_f, guide, rows, cols, values, min_disp=min_disp,
                              num_disp=num_disp, sigma_s=params.sigma_s_per_stride * _stride(samples),
-                             sigma_r=params.sigma_r, truncation=params.truncation)
+                             sigma_r=params.sigma_r, truncation=params.truncation,
+                             right_steps=steps, step_spacing=samples.pattern.stride_x,
+                             step_weight=params.step_weight, step_truncation=params.step_truncation)
 
 
 def lowpass_interpolation(samples: SampleSet, *, sigma: float) -> np.ndarray:
