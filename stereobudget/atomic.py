@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import contextlib
 import os
+import stat
 import sys
 import tempfile
 from pathlib import Path
@@ -132,7 +133,7 @@ def write_output_bytes(path, data: bytes, *, overwrite: bool = False, fsync: boo
         raise OutputError(f"cannot write: {exc.strerror or exc}", path=str(path)) from None
 
 
-def read_input_bytes(path, *, error: type[StereoBudgetError]) -> bytes:
+def read_input_bytes(path, *, error: type[StereoBudgetError], max_bytes: int | None = None) -> bytes:
     """All bytes of the file ``path``, or of standard input when ``path`` is ``-``.
 
     Parameters
@@ -141,18 +142,53 @@ def read_input_bytes(path, *, error: type[StereoBudgetError]) -> bytes:
         Input file or ``-``.
     error : type
         The :class:`~stereobudget.errors.StereoBudgetError` subclass raised when the file
-        cannot be read (missing, a directory, no permission).
+        cannot be read (missing, a directory, no permission, too large).
+    max_bytes : int, optional
+        Refuse larger inputs (default :data:`stereobudget.limits.MAX_INPUT_BYTES`, more
+        than any image or sample file within the size limits).  A regular file is
+        checked before it is read; a pipe or device (``/dev/zero``) is read in chunks
+        and refused as soon as it exceeds the limit, so no input can exhaust memory.
     """
+    from .limits import MAX_INPUT_BYTES, format_size
+    limit = MAX_INPUT_BYTES if max_bytes is None else int(max_bytes)
+    name = display_name(path)
+
+    def too_large(size_text=None):
+        what = f"input is {size_text}" if size_text else "input goes on past that limit"
+        return error(f"{what}; stereobudget reads at most {format_size(limit)} "
+                     "(more than any image or sample file within the size limits)", path=name)
+
     if _is_stdio(path):
-        return sys.stdin.buffer.read()
+        stdin = sys.stdin.buffer
+        if stdin.isatty():
+            raise error("refusing to read binary data from a terminal; pipe or redirect a file", path=name)
+        return _read_capped(stdin, limit, too_large)
     try:
-        return Path(path).read_bytes()
+        with open(path, "rb") as handle:
+            info = os.fstat(handle.fileno())
+            if stat.S_ISREG(info.st_mode):
+                if info.st_size > limit:
+                    raise too_large(format_size(info.st_size))
+                return handle.read()
+            return _read_capped(handle, limit, too_large)
     except FileNotFoundError:
         raise error("no such file", path=str(path)) from None
     except IsADirectoryError:
         raise error("is a directory, not a file", path=str(path)) from None
     except OSError as exc:
         raise error(f"cannot read: {exc.strerror or exc}", path=str(path)) from None
+
+
+def _read_capped(stream, limit: int, too_large) -> bytes:
+    chunks, total = [], 0
+    while True:
+        chunk = stream.read(min(1 << 20, limit + 1 - total))
+        if not chunk:
+            return b"".join(chunks)
+        chunks.append(chunk)
+        total += len(chunk)
+        if total > limit:
+            raise too_large()
 
 
 def display_name(path) -> str:

@@ -19,6 +19,10 @@ import os as _os
 MAX_DIMENSION = 65535
 #: Largest pixel count ``width * height`` (2**28 = 268 435 456 px, e.g. 16384 x 16384).
 MAX_PIXELS = 2 ** 28
+#: Largest input file read into memory: a 16-bit RGBA image of MAX_PIXELS uncompressed
+#: (2 GiB) plus room for headers; a .sbs file is at most 80 + 6 MAX_PIXELS bytes.  Pipes
+#: and devices are read in chunks and cut off here, so ``/dev/zero`` cannot exhaust memory.
+MAX_INPUT_BYTES = 2 ** 31 + 2 ** 24
 
 
 def dimension_problem(width: int, height: int) -> str | None:

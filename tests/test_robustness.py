@@ -627,3 +627,37 @@ def test_sigint_sigterm_mid_encode_leave_old_or_complete_outputs(kill_inputs, tm
         if data != old:
             samples = read_samples(data)
             assert (samples.height, samples.width) == big_shape[:2]
+
+
+# --- inputs that would exhaust memory or hang --------------------------------------------------
+
+def test_oversized_input_files_are_refused_before_reading(tmp_path, image_cases):
+    huge_image, huge_sbs = tmp_path / "huge.png", tmp_path / "huge.sbs"
+    for path in (huge_image, huge_sbs):
+        with open(path, "wb") as handle:          # sparse: 3 GiB on paper, nothing on disk
+            handle.truncate(3 * 2 ** 30)
+    enc, dec = _run_all([
+        [SB_ENCODE, str(huge_image), "-o", str(tmp_path / "o.sbs")],
+        [SB_DECODE, str(image_cases / "left.png"), str(huge_sbs), "--max-disp", "5",
+         "--disparity", str(tmp_path / "d.pfm")]])
+    assert_one_line_error(enc, 9, str(huge_image), "3.0 GiB", "at most 2.0 GiB")
+    assert_one_line_error(dec, 4, str(huge_sbs), "3.0 GiB")
+
+
+def test_endless_streams_are_cut_off():
+    from stereobudget.atomic import read_input_bytes
+    with pytest.raises(ImageReadError, match="goes on past"):
+        read_input_bytes("/dev/zero", error=ImageReadError, max_bytes=3 * 2 ** 20)
+    assert read_input_bytes("/dev/null", error=ImageReadError) == b""
+
+
+def test_stdin_from_a_terminal_is_refused_instead_of_hanging(tmp_path):
+    import pty
+    leader, follower = pty.openpty()
+    try:
+        proc = subprocess.run([SB_ENCODE, "-", "-o", str(tmp_path / "o.sbs")], stdin=follower,
+                              capture_output=True, text=True, timeout=60)
+    finally:
+        os.close(leader)
+        os.close(follower)
+    assert_one_line_error(proc, 9, "<stdin>", "terminal")
