@@ -152,3 +152,32 @@ def full_dsi(left: np.ndarray, right: np.ndarray, *, min_disp: int, num_disp: in
     return _full_dsi(np.ascontiguousarray(left, np.float32), np.ascontiguousarray(right, np.float32),
                      lg, rg, int(min_disp), int(num_disp), np.float32(truncation),
                      np.float32(grad_truncation), np.float32(grad_weight), out)
+
+
+def noise_level(image_f32: np.ndarray, *, block: int = 8, percentile: float = 20.0) -> float:
+    """Noise standard deviation of an image (gray levels), robust to texture.
+
+    Immerkaer's estimator (the mean absolute response of the Laplacian-difference mask
+    ``[[1,-2,1],[-2,4,-2],[1,-2,1]]`` times sqrt(pi/2)/6) measures noise plus texture;
+    taking it per ``block x block`` tile and keeping a low percentile of the tiles reads
+    it where the image is flattest, so texture barely inflates it.
+
+    Parameters
+    ----------
+    image_f32 : ndarray, float32 (H, W, C)
+        Image in 8-bit units (see :func:`to_float_image`).
+
+    Returns
+    -------
+    float
+    """
+    import cv2
+    gray = to_gray(image_f32)
+    h, w = gray.shape
+    if h < 3 * block or w < 3 * block:
+        return 0.0
+    kernel = np.array([[1, -2, 1], [-2, 4, -2], [1, -2, 1]], np.float32)
+    response = np.abs(cv2.filter2D(gray, -1, kernel, borderType=cv2.BORDER_REFLECT))
+    tiles = response[: h // block * block, : w // block * block]
+    tiles = tiles.reshape(h // block, block, w // block, block).mean(axis=(1, 3))
+    return float(np.sqrt(np.pi / 2.0) / 6.0 * np.percentile(tiles, percentile))

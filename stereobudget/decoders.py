@@ -21,13 +21,13 @@ from __future__ import annotations
 
 import logging
 import time
-from dataclasses import dataclass, field, asdict
+from dataclasses import dataclass, field, asdict, replace
 
 import numpy as np
 from numba import njit, prange
 
 from .container import SampleSet
-from .cost import DEFAULT_TRUNCATION, full_dsi, sample_row_steps, to_float_image, to_gray
+from .cost import DEFAULT_TRUNCATION, full_dsi, noise_level, sample_row_steps, to_float_image, to_gray
 from .sampling import grid_shape
 from .bilateral import filled_sparse_dsi
 from .errors import MismatchError, OptionError
@@ -78,6 +78,9 @@ class DecoderParams:
         Sparse DSI: weight and truncation (gray levels) of the difference between row
         neighbours of the sample grid compared with I1's difference over the same spacing
         (:func:`stereobudget.cost.sparse_pair_cost`); the sweep in docs/results.md.
+    noise_reference : float or None
+        Every cost truncation is at least this many times the difference that the left
+        image's noise alone produces (see :func:`adapt_to_noise`).  None: off.
     hybrid_sparse_weight : float or None
         Hybrid: weight of the Sparse DSI in the mean (the interpolated DSI gets 1 - w).
         ``None``: chosen from the stride by :func:`hybrid_weight`.
@@ -95,6 +98,7 @@ class DecoderParams:
     lowpass_per_stride: float = 0.5
     step_weight: float = 0.4
     step_truncation: float = 5.0
+    noise_reference: float | None = 2.5
     hybrid_sparse_weight: float | None = None
 
 
@@ -206,6 +210,32 @@ def check_inputs(left: np.ndarray, samples: SampleSet, *, min_disp: int, max_dis
 def _is_full_grid(samples: SampleSet) -> bool:
     p = samples.pattern
     return p.kind == "grid" and p.stride_x == 1 and p.stride_y == 1
+
+
+def adapt_to_noise(params: DecoderParams, left: np.ndarray, *, method: str) -> DecoderParams:
+    """Raise the cost truncations above what the left image's noise alone produces.
+
+    With gray-level noise sigma (:func:`stereobudget.cost.noise_level`), two matching
+    pixels differ by about ``2 sigma`` in colour, ``sigma`` in x-gradient and ``2 sigma``
+    in a grid step; a truncation below a few times that saturates on noise and the cost
+    stops discriminating.  Each truncation of a cost computed on full-resolution pixels
+    (the Sparse DSI of ``sparse``/``hybrid``, the dense DSI of ``full``) is therefore at
+    least ``noise_reference`` times its noise scale.  Hybrid's interpolated DSI and
+    Downsample work on low-passed images whose noise is already averaged away, so they
+    keep their truncations.  On Middlebury (sigma 0.7-2.05) this only touches Cones.
+    """
+    if params.noise_reference is None:
+        return params
+    sigma = noise_level(to_float_image(left))
+    k = params.noise_reference
+    changes = {"noise_reference": None}
+    if method in ("sparse", "hybrid"):
+        changes.update(truncation=max(params.truncation, 2 * k * sigma),
+                       step_truncation=max(params.step_truncation, 2 * k * sigma))
+    elif method == "full":
+        changes.update(full_truncation=max(params.full_truncation, 2 * k * sigma),
+                       grad_truncation=max(params.grad_truncation, k * sigma))
+    return replace(params, **changes)
 
 
 def _sample_values_f32(samples: SampleSet) -> np.ndarray:
@@ -383,6 +413,7 @@ def decode(left: np.ndarray, samples: SampleSet, *, max_disp: int, min_disp: int
     check_inputs(left, samples, min_disp=min_disp, max_disp=max_disp)
     if _is_full_grid(samples):
         method = "full"
+    params = adapt_to_noise(params, left, method=method)
     from .limits import check_decode_memory
     check_decode_memory(samples.height, samples.width, int(max_disp - min_disp + 1),
                         "downsample" if samples.pattern.kind == "downsample" else method,
