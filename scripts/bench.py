@@ -1,0 +1,555 @@
+#!/usr/bin/env python
+"""Benchmark the stereobudget decoder and encoder against OpenCV, and print a Markdown report.
+
+Sections (each timed in this one run, so the ratios compare like with like):
+
+1. Machine: cores, CPU model, RAM, Python / numpy / numba / OpenCV versions, numba's
+   threading layer and thread count, and the load average (the machine may be shared).
+2. Teddy (450x375, 61 disparities) at stride 5, Sparse and Hybrid: per-stage times from
+   ``DecodeResult.timings`` and the total in-process time (median of ``--repeats`` runs
+   after a warm-up, wall and CPU), interleaved with OpenCV's StereoSGBM
+   (``STEREO_SGBM_MODE_SGBM_3WAY``, 64 disparities, block 5, OpenCV's default threads)
+   on the full pair; ratio ours / SGBM.
+3. Scaling: synthetic smooth-texture pairs at 0.25, 1 and 4 MP x 64 / 128 / 256
+   disparities, one fresh subprocess per point: time per (pixel x disparity) and peak
+   resident memory.  Points whose memory estimate exceeds ``--budget`` (8 GiB) run
+   tiled under that budget and are marked so.
+4. Command line: the process wall time of a single-shot ``sb-decode`` on Teddy with a
+   warm numba cache (what a cron job pays per call), and of ``sb-encode --raw``, which
+   must not import numba or OpenCV (checked).
+5. Encoder: ``encode_image`` + ``write_samples`` frames/s in-process and per process, vs
+   OpenCV's JPEG 2000 and WebP encoders at a quality binary-searched to the same bytes.
+6. ``--big``: a 12 MP (4000x3000) frame with 256 disparities, Sparse (tiled
+   automatically), in a subprocess: peak memory and time.  Takes minutes.
+
+Examples
+--------
+    python scripts/bench.py --quick                  # about a minute
+    python scripts/bench.py --json bench.json        # full report
+    python scripts/bench.py --big --skip-scaling     # the 12 MP run only (plus Teddy)
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import platform
+import statistics
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+REPO = Path(__file__).resolve().parents[1]
+GIB = 2 ** 30
+MIB = 2 ** 20
+STRIDE = 5
+
+# --------------------------------------------------------------------------------------
+# helpers
+
+
+def _median(values):
+    return float(statistics.median(values)) if values else float("nan")
+
+
+def _fmt_s(seconds: float) -> str:
+    return f"{seconds:.3f}" if seconds == seconds else "–"
+
+
+def _bin_path(name: str) -> str:
+    """A console script installed beside the running interpreter (venv), else on PATH."""
+    candidate = Path(sys.executable).with_name(name)
+    return str(candidate) if candidate.exists() else name
+
+
+def _run_child(code: str, payload: dict, timeout: float = 3600) -> dict:
+    """Run ``code`` in a fresh interpreter with ``payload`` as argv[1]; it prints one JSON line last."""
+    proc = subprocess.run([sys.executable, "-c", code, json.dumps(payload)], capture_output=True,
+                          text=True, timeout=timeout, cwd=str(REPO))
+    if proc.returncode != 0:
+        return {"error": (proc.stderr.strip().splitlines() or ["exit %d" % proc.returncode])[-1]}
+    return json.loads(proc.stdout.strip().splitlines()[-1])
+
+
+def smooth_pair(height: int, width: int, disparity: int, seed: int = 0):
+    """A smooth random RGB texture and the same texture shifted by ``disparity`` (right view)."""
+    import cv2
+    rng = np.random.default_rng(seed)
+    coarse = rng.integers(0, 256, size=(height // 4 + 2, (width + disparity) // 4 + 2, 3), dtype=np.uint8)
+    big = cv2.resize(coarse, (width + disparity, height), interpolation=cv2.INTER_CUBIC)
+    fine = rng.integers(-12, 13, size=big.shape, dtype=np.int16)     # some high-frequency texture
+    big = np.clip(big.astype(np.int16) + fine, 0, 255).astype(np.uint8)
+    left = np.ascontiguousarray(big[:, disparity:])
+    right = np.ascontiguousarray(big[:, :width])
+    return left, right
+
+
+# --------------------------------------------------------------------------------------
+# 1. machine
+
+
+def machine_info() -> dict:
+    import cv2
+    import numba
+    from stereobudget.decoders import winner_take_all
+    winner_take_all(np.zeros((2, 2, 2), np.float32), 0)        # a parallel kernel: starts the layer
+    model = "unknown"
+    try:
+        for line in Path("/proc/cpuinfo").read_text().splitlines():
+            if line.startswith("model name"):
+                model = line.split(":", 1)[1].strip()
+                break
+    except OSError:
+        pass
+    ram = os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
+    try:
+        layer = numba.threading_layer()
+    except ValueError:
+        layer = "not started"
+    return {"nproc": os.cpu_count(), "cpu": model, "ram_gib": round(ram / GIB, 1),
+            "python": platform.python_version(), "numpy": np.__version__, "numba": numba.__version__,
+            "numba_threading_layer": layer, "numba_threads": numba.get_num_threads(),
+            "opencv": cv2.__version__, "opencv_threads": cv2.getNumThreads(),
+            "loadavg_start": list(os.getloadavg())}
+
+
+# --------------------------------------------------------------------------------------
+# 2. Teddy vs SGBM
+
+
+def _sgbm():
+    import cv2
+    return cv2.StereoSGBM_create(minDisparity=0, numDisparities=64, blockSize=5, P1=8 * 3 * 25, P2=32 * 3 * 25,
+                                 mode=cv2.STEREO_SGBM_MODE_SGBM_3WAY)
+
+
+def teddy_benchmark(data_dir: Path, *, repeats: int, methods=("sparse", "hybrid")) -> dict:
+    import cv2
+    from stereobudget import imageio
+    from stereobudget.container import encode_image, load_samples, save_samples
+    from stereobudget.decoders import check_inputs, decode
+    from stereobudget.sampling import SamplingPattern
+
+    folder = data_dir / "teddy"
+    max_disp = 60
+    with tempfile.TemporaryDirectory() as tmp:
+        right, _ = imageio.read_image(str(folder / "right.png"))
+        sbs = Path(tmp) / "teddy.sbs"
+        save_samples(encode_image(right, pattern=SamplingPattern("grid", STRIDE, STRIDE)), sbs)
+        read_times = []
+        for _ in range(repeats):
+            t = time.perf_counter()
+            left, _ = imageio.read_image(str(folder / "left.png"))
+            samples = load_samples(sbs)
+            check_inputs(left, samples, min_disp=0, max_disp=max_disp)
+            read_times.append(time.perf_counter() - t)
+    left_bgr = cv2.imread(str(folder / "left.png"))
+    right_bgr = cv2.imread(str(folder / "right.png"))
+    sgbm = _sgbm()
+    for method in methods:                         # warm-up: JIT cache load, first-touch pages
+        decode(left, samples, max_disp=max_disp, method=method)
+    sgbm.compute(left_bgr, right_bgr)
+
+    wall = {m: [] for m in methods}
+    cpu = {m: [] for m in methods}
+    stages = {m: [] for m in methods}
+    sgbm_wall, sgbm_cpu = [], []
+    for _ in range(repeats):                       # interleaved, so load changes hit both alike
+        for method in methods:
+            c, t = time.process_time(), time.perf_counter()
+            result = decode(left, samples, max_disp=max_disp, method=method)
+            wall[method].append(time.perf_counter() - t)
+            cpu[method].append(time.process_time() - c)
+            stages[method].append(result.timings)
+        c, t = time.process_time(), time.perf_counter()
+        sgbm.compute(left_bgr, right_bgr)
+        sgbm_wall.append(time.perf_counter() - t)
+        sgbm_cpu.append(time.process_time() - c)
+    out = {"repeats": repeats, "read_validate": _median(read_times),
+           "sgbm": {"wall": _median(sgbm_wall), "cpu": _median(sgbm_cpu), "threads": cv2.getNumThreads()},
+           "methods": {}}
+    for method in methods:
+        names = sorted({k for t in stages[method] for k in t}, key=list(stages[method][0]).index)
+        out["methods"][method] = {
+            "wall": _median(wall[method]), "cpu": _median(cpu[method]),
+            "wall_min": min(wall[method]), "wall_all": wall[method],
+            "stages": {k: _median([t.get(k, 0.0) for t in stages[method]]) for k in names},
+            "ratio_wall": _median(wall[method]) / _median(sgbm_wall),
+            "ratio_cpu": _median(cpu[method]) / _median(sgbm_cpu)}
+    return out
+
+
+def teddy_report(r: dict) -> list[str]:
+    lines = [f"### Teddy 450x375, 61 disparities, stride {STRIDE} (median of {r['repeats']} runs after a warm-up)",
+             "", "| stage | " + " | ".join(r["methods"]) + " |", "|---|" + "---:|" * len(r["methods"])]
+    stage_names = []
+    for m in r["methods"].values():
+        stage_names += [k for k in m["stages"] if k not in stage_names]
+    lines.append("| read + validate (PNG + .sbs) | " + " | ".join(_fmt_s(r["read_validate"]) for _ in r["methods"]) + " |")
+    for k in stage_names:
+        lines.append(f"| {k} | " + " | ".join(_fmt_s(m["stages"].get(k, float('nan'))) for m in r["methods"].values())
+                     + " |")
+    lines.append("| **total decode, wall** | " + " | ".join(f"**{_fmt_s(m['wall'])}**" for m in r["methods"].values())
+                 + " |")
+    lines.append("| total decode, CPU (all threads) | " + " | ".join(_fmt_s(m["cpu"]) for m in r["methods"].values())
+                 + " |")
+    s = r["sgbm"]
+    lines.append(f"| SGBM_3WAY full pair, wall / CPU ({s['threads']} threads) | "
+                 + " | ".join(f"{_fmt_s(s['wall'])} / {_fmt_s(s['cpu'])}" for _ in r["methods"]) + " |")
+    lines.append("| **ours / SGBM, wall** | " + " | ".join(f"**{m['ratio_wall']:.1f}x**" for m in r["methods"].values())
+                 + " |")
+    lines.append("| ours / SGBM, CPU | " + " | ".join(f"{m['ratio_cpu']:.1f}x" for m in r["methods"].values()) + " |")
+    return lines + [""]
+
+
+# --------------------------------------------------------------------------------------
+# 3. scaling
+
+_SCALING_CHILD = r"""
+import json, os, resource, sys, time
+import numpy as np
+sys.path.insert(0, os.path.join(os.getcwd(), "scripts"))
+from bench import smooth_pair
+from stereobudget.container import encode_image
+from stereobudget.sampling import SamplingPattern
+from stereobudget.decoders import decode, auto_tile_rows
+a = json.loads(sys.argv[1])
+h, w, nd, method, budget, repeats = a["h"], a["w"], a["nd"], a["method"], a["budget"], a["repeats"]
+def rss(field):
+    for line in open("/proc/self/status"):
+        if line.startswith(field):
+            return int(line.split()[1]) * 1024
+    return None
+# Warm-up on a tiny pair: loads the JIT cache so compilation is not timed.
+l, r = smooth_pair(48, 96, 8)
+decode(l, encode_image(r, pattern=SamplingPattern("grid", 5, 5)), max_disp=15, method=method)
+left, right = smooth_pair(h, w, nd // 4)
+samples = encode_image(right, pattern=SamplingPattern("grid", 5, 5))
+tiles = auto_tile_rows(samples, num_disp=nd, method=method, max_memory=budget)
+base = rss("VmRSS:")
+try:
+    with open("/proc/self/clear_refs", "w") as f:   # reset the peak-RSS counter (VmHWM)
+        f.write("5")
+    reset = True
+except OSError:
+    reset = False
+times, cpus = [], []
+for _ in range(repeats):
+    c, t = time.process_time(), time.perf_counter()
+    res = decode(left, samples, max_disp=nd - 1, method=method, max_memory=budget)
+    times.append(time.perf_counter() - t); cpus.append(time.process_time() - c)
+peak = rss("VmHWM:") if reset else resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024
+print(json.dumps({"wall": sorted(times)[len(times) // 2], "cpu": sorted(cpus)[len(cpus) // 2],
+                  "peak": peak, "base": base, "tile_rows": tiles, "reset": reset}))
+"""
+
+
+def scaling(*, sizes, disparities, methods, budget: int, repeats: int, per_point_timeout: float) -> list[dict]:
+    from stereobudget.limits import estimate_decode_memory
+    rows = []
+    for method in methods:
+        for mp in sizes:
+            side = int(round((mp * 1e6) ** 0.5))
+            h, w = side, side
+            for nd in disparities:
+                estimate = estimate_decode_memory(h, w, nd, method)
+                point = {"method": method, "mp": mp, "h": h, "w": w, "nd": nd, "estimate": estimate}
+                print(f"  scaling: {method} {w}x{h} x {nd} (estimate {estimate / GIB:.1f} GiB) ...",
+                      file=sys.stderr, flush=True)
+                res = _run_child(_SCALING_CHILD, {"h": h, "w": w, "nd": nd, "method": method, "budget": budget,
+                                                  "repeats": repeats}, timeout=per_point_timeout)
+                point.update(res)
+                if "wall" in res:
+                    point["ns_per_nd"] = res["wall"] / (h * w * nd) * 1e9
+                    point["cpu_ns_per_nd"] = res["cpu"] / (h * w * nd) * 1e9
+                rows.append(point)
+    return rows
+
+
+def scaling_report(rows: list[dict], budget: int) -> list[str]:
+    lines = ["### Scaling (synthetic smooth texture, stride 5; one fresh process per point)", "",
+             "| method | size | disparities | wall s | ns / (px·disp), wall | CPU | peak RSS | est. | note |",
+             "|---|---|---:|---:|---:|---:|---:|---:|---|"]
+    for p in rows:
+        size = f"{p['w']}x{p['h']} ({p['mp']:g} MP)"
+        if "error" in p:
+            lines.append(f"| {p['method']} | {size} | {p['nd']} | – | – | – | – | {p['estimate'] / GIB:.1f} GiB | "
+                         f"failed: {p['error']} |")
+            continue
+        note = f"tiled, bands of {p['tile_rows']} rows (budget {budget / GIB:.0f} GiB)" if p.get("tile_rows") else ""
+        lines.append(f"| {p['method']} | {size} | {p['nd']} | {p['wall']:.2f} | {p['ns_per_nd']:.1f} | "
+                     f"{p['cpu_ns_per_nd']:.1f} | {p['peak'] / GIB:.2f} GiB | {p['estimate'] / GIB:.1f} GiB | {note} |")
+    for method in sorted({p["method"] for p in rows}):
+        values = [p["ns_per_nd"] for p in rows if p["method"] == method and "ns_per_nd" in p and not p.get("tile_rows")]
+        if values:
+            mid = statistics.median(values)
+            lines.append("")
+            lines.append(f"{method}: untiled ns/(px·disp) spans {min(values):.1f}–{max(values):.1f} "
+                         f"({100 * (min(values) / mid - 1):+.0f} % / {100 * (max(values) / mid - 1):+.0f} % "
+                         f"around the median {mid:.1f}).")
+    return lines + [""]
+
+
+# --------------------------------------------------------------------------------------
+# 4. command line
+
+
+def cli_benchmark(data_dir: Path, *, repeats: int) -> dict:
+    from stereobudget import imageio
+    from stereobudget.container import encode_image, save_samples
+    from stereobudget.sampling import SamplingPattern
+    out = {}
+    with tempfile.TemporaryDirectory() as tmp:
+        tmp = Path(tmp)
+        right, _ = imageio.read_image(str(data_dir / "teddy" / "right.png"))
+        save_samples(encode_image(right, pattern=SamplingPattern("grid", STRIDE, STRIDE)), tmp / "teddy.sbs")
+        (tmp / "right.rgb").write_bytes(np.ascontiguousarray(right).tobytes())
+        for method in ("sparse", "hybrid"):
+            cmd = [_bin_path("sb-decode"), str(data_dir / "teddy" / "left.png"), str(tmp / "teddy.sbs"),
+                   "--max-disp", "60", "--method", method, "--disparity", str(tmp / "d.pfm"), "--overwrite", "--json"]
+            subprocess.run(cmd, capture_output=True, check=True)       # warms the numba cache
+            walls, inner = [], []
+            for _ in range(repeats):
+                t = time.perf_counter()
+                proc = subprocess.run(cmd, capture_output=True, text=True, check=True)
+                walls.append(time.perf_counter() - t)
+                try:
+                    inner.append(json.loads(proc.stdout.strip().splitlines()[-1])["timings"]["total"])
+                except (ValueError, KeyError, IndexError):
+                    pass
+            out[f"sb-decode {method}"] = {"wall": _median(walls), "inner_total": _median(inner)}
+        enc = [_bin_path("sb-encode"), str(tmp / "right.rgb"), "--raw", f"{right.shape[1]}x{right.shape[0]}",
+               "--pix-fmt", "rgb24", "-o", str(tmp / "e.sbs"), "--overwrite"]
+        subprocess.run(enc, capture_output=True, check=True)
+        walls = []
+        for _ in range(repeats):
+            t = time.perf_counter()
+            subprocess.run(enc, capture_output=True, check=True)
+            walls.append(time.perf_counter() - t)
+        out["sb-encode --raw"] = {"wall": _median(walls)}
+        # What the encoder process imports (it must stay light: no numba, no OpenCV).
+        probe = ("import sys\nfrom stereobudget.cli.encode import main\n"
+                 f"try:\n    main({enc[1:]!r})\nexcept SystemExit:\n    pass\n"
+                 "print('numba' in sys.modules, 'cv2' in sys.modules)")
+        proc = subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True)
+        flags = proc.stdout.split()
+        out["sb-encode imports numba"] = flags[-2] if len(flags) >= 2 else "?"
+        out["sb-encode imports cv2"] = flags[-1] if flags else "?"
+        t = time.perf_counter()
+        subprocess.run([sys.executable, "-c", "pass"], check=True)
+        out["bare python"] = {"wall": time.perf_counter() - t}
+    return out
+
+
+def cli_report(r: dict) -> list[str]:
+    lines = ["### Command line (process wall time, median; warm numba cache)", "",
+             "| command | wall s | in-process total s |", "|---|---:|---:|"]
+    for k, v in r.items():
+        if isinstance(v, dict):
+            lines.append(f"| {k} | {v['wall']:.3f} | {_fmt_s(v.get('inner_total', float('nan')))} |")
+    lines.append("")
+    lines.append(f"sb-encode --raw imports numba: {r.get('sb-encode imports numba')}, "
+                 f"OpenCV: {r.get('sb-encode imports cv2')}.")
+    return lines + [""]
+
+
+# --------------------------------------------------------------------------------------
+# 5. encoder vs JPEG 2000 / WebP
+
+
+def _quality_for_bytes(encode, target: int, lo: int, hi: int):
+    """Largest quality whose output is <= target bytes (binary search); returns (quality, bytes)."""
+    best = (lo, len(encode(lo)))
+    while lo <= hi:
+        mid = (lo + hi) // 2
+        n = len(encode(mid))
+        if n <= target:
+            best = (mid, n)
+            lo = mid + 1
+        else:
+            hi = mid - 1
+    return best
+
+
+def _throughput(fn, min_seconds: float) -> float:
+    fn()
+    count, start = 0, time.perf_counter()
+    while True:
+        fn()
+        count += 1
+        elapsed = time.perf_counter() - start
+        if elapsed >= min_seconds and count >= 3:
+            return count / elapsed
+
+
+def encoder_benchmark(data_dir: Path, *, min_seconds: float) -> dict:
+    import cv2
+    from stereobudget import imageio
+    from stereobudget.container import encode_image, write_samples
+    from stereobudget.sampling import SamplingPattern
+    right, _ = imageio.read_image(str(data_dir / "teddy" / "right.png"))
+    pattern = SamplingPattern("grid", STRIDE, STRIDE)
+    target = len(write_samples(encode_image(right, pattern=pattern)))
+    bgr = cv2.cvtColor(right, cv2.COLOR_RGB2BGR)
+    out = {"frame": f"{right.shape[1]}x{right.shape[0]}", "sbs_bytes": target,
+           "sbs_fps": _throughput(lambda: write_samples(encode_image(right, pattern=pattern)), min_seconds)}
+
+    def jp2(q):
+        ok, buf = cv2.imencode(".jp2", bgr, [cv2.IMWRITE_JPEG2000_COMPRESSION_X1000, int(q)])
+        return buf
+
+    def webp(q):
+        ok, buf = cv2.imencode(".webp", bgr, [cv2.IMWRITE_WEBP_QUALITY, int(q)])
+        return buf
+
+    for name, fn, lo, hi in (("JPEG 2000", jp2, 0, 1000), ("WebP", webp, 1, 100)):
+        try:
+            q, n = _quality_for_bytes(fn, target, lo, hi)
+            out[name] = {"quality": q, "bytes": n, "fps": _throughput(lambda: fn(q), min_seconds)}
+        except cv2.error as exc:
+            out[name] = {"error": str(exc).strip().splitlines()[-1]}
+    return out
+
+
+def encoder_report(r: dict, cli: dict | None) -> list[str]:
+    lines = [f"### Encoder on Teddy's right view ({r['frame']}), same bytes as the stride-{STRIDE} sample file", "",
+             "| encoder | quality | bytes | frames/s (in-process) |", "|---|---:|---:|---:|",
+             f"| sb-encode grid stride {STRIDE} (encode_image + write_samples) | – | {r['sbs_bytes']} | "
+             f"{r['sbs_fps']:.0f} |"]
+    for name in ("JPEG 2000", "WebP"):
+        v = r.get(name, {})
+        if "error" in v:
+            lines.append(f"| OpenCV {name} | – | – | unavailable: {v['error']} |")
+        else:
+            lines.append(f"| OpenCV {name} | {v['quality']} | {v['bytes']} | {v['fps']:.0f} |")
+    if cli and "sb-encode --raw" in cli:
+        lines.append("")
+        lines.append(f"Per process: `sb-encode --raw` takes {cli['sb-encode --raw']['wall']:.3f} s wall "
+                     f"({1 / cli['sb-encode --raw']['wall']:.1f} frames/s if each frame is its own process; "
+                     f"a bare `python -c pass` takes {cli['bare python']['wall']:.3f} s).")
+    return lines + [""]
+
+
+# --------------------------------------------------------------------------------------
+# 6. 12 MP
+
+_BIG_CHILD = r"""
+import json, os, resource, sys, time
+import numpy as np
+sys.path.insert(0, os.path.join(os.getcwd(), "scripts"))
+from bench import smooth_pair
+from stereobudget.container import encode_image
+from stereobudget.sampling import SamplingPattern
+from stereobudget.decoders import decode, auto_tile_rows
+from stereobudget.limits import estimate_decode_memory
+a = json.loads(sys.argv[1])
+h, w, nd, method, budget = a["h"], a["w"], a["nd"], a["method"], a["budget"]
+l, r = smooth_pair(48, 96, 8)
+decode(l, encode_image(r, pattern=SamplingPattern("grid", 5, 5)), max_disp=15, method=method)
+left, right = smooth_pair(h, w, 64)
+samples = encode_image(right, pattern=SamplingPattern("grid", 5, 5))
+tiles = auto_tile_rows(samples, num_disp=nd, method=method, max_memory=budget)
+c, t = time.process_time(), time.perf_counter()
+res = decode(left, samples, max_disp=nd - 1, method=method, max_memory=budget)
+wall, cpu = time.perf_counter() - t, time.process_time() - c
+err = np.abs(res.disparity - 64)
+print(json.dumps({"wall": wall, "cpu": cpu, "peak": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024,
+                  "tile_rows": tiles, "whole_frame_estimate": estimate_decode_memory(h, w, nd, method),
+                  "bad1": float(np.mean(err > 1)), "timings": res.timings}))
+"""
+
+
+def big_frame(*, method: str, budget: int) -> dict:
+    return _run_child(_BIG_CHILD, {"h": 3000, "w": 4000, "nd": 256, "method": method, "budget": budget},
+                      timeout=7200)
+
+
+def big_report(results: dict, budget: int) -> list[str]:
+    lines = ["### 12 MP (4000x3000), 256 disparities, stride 5, tiled automatically", "",
+             "| method | whole-frame estimate | bands (rows + 2x overlap) | wall s | CPU s | peak RSS | "
+             "bad > 1 px (shift 64) |", "|---|---:|---|---:|---:|---:|---:|"]
+    for method, r in results.items():
+        if "error" in r:
+            lines.append(f"| {method} | – | – | – | – | – | failed: {r['error']} |")
+            continue
+        lines.append(f"| {method} | {r['whole_frame_estimate'] / GIB:.1f} GiB | {r['tile_rows']} | {r['wall']:.1f} | "
+                     f"{r['cpu']:.1f} | {r['peak'] / GIB:.2f} GiB | {100 * r['bad1']:.2f} % |")
+    lines.append("")
+    lines.append(f"Memory budget given to decode: {budget / GIB:.0f} GiB.")
+    return lines + [""]
+
+
+# --------------------------------------------------------------------------------------
+
+
+def parse_args(argv=None):
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0],
+                                     formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--data", type=Path, default=None, help="Middlebury folder (default: ../shared/data/middlebury)")
+    parser.add_argument("--quick", action="store_true",
+                        help="about a minute: 5 Teddy runs, scaling at 0.25/1 MP x 64 only, short encoder timing")
+    parser.add_argument("--repeats", type=int, default=None, help="timed runs per measurement (default 7, quick 5)")
+    parser.add_argument("--skip-scaling", action="store_true")
+    parser.add_argument("--big", action="store_true", help="also decode a 12 MP frame with 256 disparities")
+    parser.add_argument("--big-methods", default="sparse", help="methods of the --big run (comma-separated)")
+    parser.add_argument("--budget", type=float, default=8.0, help="memory budget in GiB for scaling / --big")
+    parser.add_argument("--json", type=Path, default=None, help="also write every number to this JSON file")
+    return parser.parse_args(argv)
+
+
+def main(argv=None) -> int:
+    args = parse_args(argv)
+    from stereobudget.middlebury import default_data_dir
+    data_dir = args.data or default_data_dir()
+    if not (data_dir / "teddy" / "left.png").is_file():
+        print(f"bench.py: error: no Middlebury Teddy under {data_dir} (use --data)", file=sys.stderr)
+        return 2
+    repeats = args.repeats or (5 if args.quick else 7)
+    budget = int(args.budget * GIB)
+    results: dict = {"machine": machine_info()}
+    report = ["## Benchmark", ""]
+
+    print("teddy ...", file=sys.stderr, flush=True)
+    results["teddy"] = teddy_benchmark(data_dir, repeats=repeats)
+    if not args.skip_scaling:
+        sizes, disps = ((0.25, 1.0), (64,)) if args.quick else ((0.25, 1.0, 4.0), (64, 128, 256))
+        results["scaling"] = scaling(sizes=sizes, disparities=disps, methods=("sparse", "hybrid"), budget=budget,
+                                     repeats=1 if not args.quick else 1, per_point_timeout=3600)
+    print("command line ...", file=sys.stderr, flush=True)
+    results["cli"] = cli_benchmark(data_dir, repeats=3 if args.quick else 5)
+    print("encoder ...", file=sys.stderr, flush=True)
+    results["encoder"] = encoder_benchmark(data_dir, min_seconds=0.3 if args.quick else 1.0)
+    if args.big:
+        results["big"] = {}
+        for method in args.big_methods.split(","):
+            print(f"12 MP {method} ...", file=sys.stderr, flush=True)
+            results["big"][method] = big_frame(method=method, budget=budget)
+    results["machine"]["loadavg_end"] = list(os.getloadavg())
+
+    m = results["machine"]
+    report += [f"Machine: {m['nproc']} cores ({m['cpu']}), {m['ram_gib']} GiB RAM; Python {m['python']}, "
+               f"numpy {m['numpy']}, numba {m['numba']} (threading layer {m['numba_threading_layer']}, "
+               f"{m['numba_threads']} threads), OpenCV {m['opencv']} ({m['opencv_threads']} threads).  "
+               f"Load average at start {m['loadavg_start'][0]:.1f}, at end {m['loadavg_end'][0]:.1f} "
+               f"(a load above {m['nproc']} means other jobs share the cores: wall times are then inflated, "
+               f"CPU times and same-run ratios are the steadier figures).", ""]
+    report += teddy_report(results["teddy"])
+    if "scaling" in results:
+        report += scaling_report(results["scaling"], budget)
+    report += cli_report(results["cli"])
+    report += encoder_report(results["encoder"], results["cli"])
+    if "big" in results:
+        report += big_report(results["big"], budget)
+    print("\n".join(report))
+    if args.json:
+        args.json.write_text(json.dumps(results, indent=1, default=float))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
