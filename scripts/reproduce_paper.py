@@ -556,8 +556,17 @@ def write_atomically(path: Path, data: bytes) -> None:
     tmp.replace(path)
 
 
-def reproduce(runner: Runner, out: Path, strides, *, experiments=("tables", "fig5a", "fig5b", "fig5c",
-                                                                    "fig5d", "bars")) -> dict:
+ALL_EXPERIMENTS = ("tables", "fig5a", "fig5b", "fig5c", "fig5d", "bars", "fig8")
+
+
+def fig8_experiment(runner: Runner, out: Path, strides, data_dir=None) -> list[dict]:
+    """Fig. 8 (PSNR of the recovered right image), from scripts/reproduce_synthesis.py."""
+    sys.path.insert(0, str(Path(__file__).resolve().parent))
+    from reproduce_synthesis import figure8
+    return figure8(data_dir, out, scenes=tuple(sc.name for sc in runner.scenes), strides=tuple(strides))
+
+
+def reproduce(runner: Runner, out: Path, strides, *, experiments=ALL_EXPERIMENTS, data_dir=None) -> dict:
     """Run the chosen experiments, write ``summary.md``, the PNG plots and ``results.json``."""
     out.mkdir(parents=True, exist_ok=True)
     names = [sc.name for sc in runner.scenes]
@@ -604,6 +613,11 @@ def reproduce(runner: Runner, out: Path, strides, *, experiments=("tables", "fig
         md += ["## Headline comparisons", ""] + bars_markdown(results["bars"], len(names)) + \
               ["![bars](bars.png)", ""]
         _plot_bars(out / "bars.png", results["bars"])
+    if "fig8" in experiments:
+        log("Fig. 8")
+        results["fig8"] = fig8_experiment(runner, out, strides, data_dir)
+        md += ["## Fig. 8", "", "PSNR of the recovered right image: see [fig8.md](fig8.md).",
+               "![Fig. 8](fig8.png)", ""]
     write_atomically(out / "summary.md", "\n".join(md).encode())
     write_atomically(out / "results.json", json.dumps(_jsonable(results), indent=1).encode())
     return results
@@ -629,13 +643,12 @@ def main(argv=None) -> int:
                              f"{', '.join(map(str, QUICK_STRIDES))}")
     parser.add_argument("--scenes", default=None, help="comma-separated scene names (overrides --quick's)")
     parser.add_argument("--only", default=None,
-                        help="comma-separated experiments: tables, fig5a, fig5b, fig5c, fig5d, bars")
+                        help="comma-separated experiments: " + ", ".join(ALL_EXPERIMENTS))
     args = parser.parse_args(argv)
     names = (args.scenes.split(",") if args.scenes else
              list(QUICK_SCENES) if args.quick else list(SCENES))
     strides = QUICK_STRIDES if args.quick else STRIDES
-    experiments = tuple(args.only.split(",")) if args.only else ("tables", "fig5a", "fig5b", "fig5c", "fig5d",
-                                                                 "bars")
+    experiments = tuple(args.only.split(",")) if args.only else ALL_EXPERIMENTS
     try:
         scenes = [load_scene(args.data, n) for n in names]
     except StereoBudgetError as exc:
@@ -643,7 +656,7 @@ def main(argv=None) -> int:
         return 2
     start = time.perf_counter()
     _warm_up()
-    reproduce(Runner(scenes), args.out, strides, experiments=experiments)
+    reproduce(Runner(scenes), args.out, strides, experiments=experiments, data_dir=args.data)
     log(f"done in {time.perf_counter() - start:.0f} s; wrote {args.out / 'summary.md'}")
     return 0
 
