@@ -113,3 +113,31 @@ def test_timings_and_summary_are_reported(scene):
     assert {"tree", "jbf_fill", "aggregate", "wta"} <= set(result.timings)
     s = result.summary()
     assert s["method"] == "hybrid" and s["params"]["sigma_r"] == 15.0
+
+
+def test_noise_level_tracks_added_noise_not_texture():
+    from stereobudget.cost import noise_level, to_float_image
+    levels = [noise_level(to_float_image(make_scene("slanted", seed=0, noise_sigma=s).left)) for s in (0, 4, 8)]
+    assert levels[0] < 0.5  # a clean textured scene reads as (nearly) noise-free
+    # Per-channel noise sigma s gives gray noise s / sqrt(3) = 2.3 and 4.6.
+    assert 1.5 < levels[1] < 3.0 and 3.0 < levels[2] < 6.0
+
+
+def test_noisy_images_keep_costs_discriminative():
+    from stereobudget.decoders import adapt_to_noise
+    sc = make_scene("slanted", seed=0, noise_sigma=8)
+    p = adapt_to_noise(DecoderParams(), sc.left, method="full")
+    assert p.full_truncation > DecoderParams().full_truncation and p.noise_reference is None
+    assert adapt_to_noise(DecoderParams(), make_scene("slanted", seed=0).left, method="full") \
+        .full_truncation == DecoderParams().full_truncation
+    samples = encode_image(sc.right, pattern=SamplingPattern("grid", 3, 3))
+    result = stereobudget.decode(sc.left, samples, max_disp=int(np.ceil(sc.max_disp)), method="hybrid")
+    assert _good_fraction(result.disparity, sc) >= 0.9
+
+
+def test_sample_row_steps_are_exact_differences():
+    from stereobudget.cost import sample_row_steps
+    lattice = np.array([[1, 4, 9], [0, 0, 5]], np.float32)
+    steps = sample_row_steps(lattice)
+    assert steps[0, 0] == 3 and steps[0, 1] == 5 and steps[1, 1] == 5
+    assert np.isnan(steps[:, 2]).all()
