@@ -8,6 +8,7 @@ other exception, a hang, or a damaged output file.  docs/errors.md lists the cod
 from __future__ import annotations
 
 import functools
+import io
 import json
 import os
 import random
@@ -28,9 +29,8 @@ from hypothesis import strategies as st
 
 from stereobudget import container, limits
 from stereobudget.container import MAGIC, encode_image, read_samples, write_samples
-from stereobudget.errors import (CorruptHeaderError, ImageReadError, MemoryLimitError, MismatchError,
-                                 OptionError, OutputError, SampleFileError, StereoBudgetError,
-                                 TruncatedFileError)
+from stereobudget.errors import (CorruptHeaderError, ImageReadError, MemoryLimitError, SampleFileError,
+                                 StereoBudgetError, TruncatedFileError)
 from stereobudget.sampling import SamplingPattern
 
 REPO = Path(__file__).resolve().parents[1]
@@ -152,12 +152,21 @@ def mutated_sample_files(draw):
 
 
 def reader_outcome(data: bytes) -> str:
+    # The header-only probe (sb-encode --info --header-only) sees the same bytes.
+    try:
+        container.probe(data, name="case.sbs")
+        probed = "ok"
+    except SampleFileError as exc:
+        probed = type(exc).__name__
     try:
         read_samples(data, source="case.sbs")
     except StereoBudgetError as exc:
         assert isinstance(exc, SampleFileError), exc
         assert "\n" not in str(exc) and str(exc).startswith("case.sbs: ")
+        # Only the payload checksum is beyond the probe.
+        assert probed in (type(exc).__name__, "ok")
         return type(exc).__name__
+    assert probed == "ok"
     return "ok"
 
 
@@ -191,6 +200,38 @@ def test_decode_path_fuzz_agrees_with_the_reader(case, left_files, tmp_path_fact
         assert outcome in ("ok", "MismatchError", "OptionError")
     if outcome == "ok":
         assert read_disparity(str(folder / "d.pfm")).shape == (H, W)
+
+
+@functools.lru_cache(maxsize=None)
+def encoded_images() -> tuple:
+    import cv2
+    import tifffile
+
+    from stereobudget.imageio import encode_image_bytes
+    left, _ = _stereo_pair(7, 20, 24, 3)
+    ok, jpeg = cv2.imencode(".jpg", left)
+    tiff = io.BytesIO()
+    tifffile.imwrite(tiff, left.astype(np.uint16) * 257)
+    ok, bmp = cv2.imencode(".bmp", left)
+    return (encode_image_bytes(left), encode_image_bytes(left[:, :, 0].astype(np.uint16), channel_order="gray"),
+            jpeg.tobytes(), tiff.getvalue(), bmp.tobytes())
+
+
+@settings(max_examples=100, deadline=None, suppress_health_check=list(HealthCheck), derandomize=True)
+@given(index=st.integers(0, 4), cut=st.integers(0, 10 ** 6),
+       flips=st.lists(st.tuples(st.integers(0, 10 ** 6), st.integers(0, 7)), max_size=6))
+def test_image_reader_fuzz_ends_in_image_errors(index, cut, flips):
+    from stereobudget.imageio import read_image
+    data = bytearray(encoded_images()[index])
+    for pos, bit in flips:
+        data[pos % len(data)] ^= 1 << bit
+    data = bytes(data[:max(1, cut % (len(data) + 1))]) if cut % 3 == 0 else bytes(data)
+    try:
+        image, order = read_image(data, name="case.img")
+    except ImageReadError as exc:
+        assert "\n" not in str(exc) and str(exc).startswith("case.img: ")
+        return
+    assert image.dtype in (np.uint8, np.uint16) and image.ndim in (2, 3) and order in ("gray", "rgb")
 
 
 def test_fuzz_script_runs_clean(tmp_path):
@@ -456,7 +497,9 @@ def test_decode_refuses_before_allocating(monkeypatch):
 
     def no_volumes(*args, **kwargs):
         raise AssertionError("nothing may be allocated after the memory check failed")
-    monkeypatch.setattr(decoders, "to_float_image", no_volumes)
+    from stereobudget import tree
+    for module, name in ((tree, "build_tree"), (decoders, "full_dsi"), (decoders, "filled_sparse_dsi")):
+        monkeypatch.setattr(module, name, no_volumes)
     with pytest.raises(MemoryLimitError) as info:
         decoders.decode(left, samples, max_disp=5, max_memory=need - 1)
     message = str(info.value)
