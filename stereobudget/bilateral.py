@@ -309,6 +309,221 @@ def _normalised_slice(guide, grid_val, grid_w, geom, density, missing_value, cha
                              eps, np.float32(missing_value), channel_map, out)
 
 
+# --------------------------------------------------------------------------------------
+# Sparse DSI on a full sample lattice: the mask channels repeat with the stride.
+#
+# On a regular grid the samples of layer d sit at x = c + d for the lattice columns c, so
+# the mask (weight) channel of layer d equals that of layer d + stride except for the
+# lattice column that enters at the left border.  The weights are therefore kept as
+# ``stride`` *base* channels (every lattice column of one residue class, the whole frame)
+# plus, per layer, a *band* holding only the grid cells near the left border that the
+# missing columns reach through the blur.  Every cell used from either is bit-for-bit
+# the cell of the per-layer weight grid (same points, same summation order), so the
+# result is unchanged; the weight grids shrink from D channels to ``stride`` channels
+# plus a band of ~(max_disp + blur reach) / cell columns.
+
+
+@njit(cache=True)
+def _splat_sparse_dsi_split(rows, cols, right_values, right_steps, left, guide, min_disp, truncation,
+                            step_spacing, step_weight, step_truncation, inv_cs, inv_cr,
+                            grid_val, band_w, occupied):
+    """:func:`_splat_sparse_dsi` with the weights of layer i written only into cells [0, B) of ``band_w``."""
+    gy_n, gx_n, gz_n, num_disp = grid_val.shape
+    band_n = band_w.shape[1]
+    w = left.shape[1]
+    for k in range(rows.shape[0]):
+        y = rows[k]
+        y0, ty = _hat(y * inv_cs, gy_n)
+        for i in range(num_disp):
+            x = cols[k] + min_disp + i
+            if x < 0 or x >= w:
+                continue
+            left_step = np.float32(np.nan)
+            if step_weight > 0 and x + step_spacing < w:
+                left_step = guide[y, x + step_spacing] - guide[y, x]
+            cost = sparse_pair_cost(left[y, x], right_values[k], left_step, right_steps[k], truncation,
+                                    step_weight, step_truncation)
+            x0, tx = _hat(x * inv_cs, gx_n)
+            z0, tz = _hat(guide[y, x] * inv_cr, gz_n)
+            for a in range(2):
+                wy = ty if a else 1 - ty
+                for b in range(2):
+                    wx = tx if b else 1 - tx
+                    for c in range(2):
+                        wz = tz if c else 1 - tz
+                        wgt = wy * wx * wz
+                        grid_val[y0 + a, x0 + b, z0 + c, i] += wgt * cost
+                        occupied[y0 + a, x0 + b, z0 + c] = True
+                        if x0 + b < band_n:
+                            band_w[y0 + a, x0 + b, z0 + c, i] += wgt
+
+
+@njit(cache=True)
+def _splat_lattice_weights(sample_rows, first_column, stride, guide, inv_cs, inv_cr, base_w):
+    """Base weight channel b: every column ``first_column[b] + m * stride`` of every sample row."""
+    gy_n, gx_n, gz_n, n_base = base_w.shape
+    w = guide.shape[1]
+    for r in range(sample_rows.shape[0]):
+        y = sample_rows[r]
+        y0, ty = _hat(y * inv_cs, gy_n)
+        for ch in range(n_base):
+            for x in range(first_column[ch], w, stride):
+                x0, tx = _hat(x * inv_cs, gx_n)
+                z0, tz = _hat(guide[y, x] * inv_cr, gz_n)
+                for a in range(2):
+                    wy = ty if a else 1 - ty
+                    for b in range(2):
+                        wx = tx if b else 1 - tx
+                        for c in range(2):
+                            wz = tz if c else 1 - tz
+                            wgt = wy * wx * wz
+                            base_w[y0 + a, x0 + b, z0 + c, ch] += wgt
+
+
+@njit(cache=True, inline="always")
+def _add_corners_from(rows, corner_index, corner_weight, lo, n, acc):
+    """Like :func:`_add_corners` for channels ``[lo, n)`` only."""
+    first = rows[corner_index[0]]
+    w0 = corner_weight[0]
+    for i in range(lo, n):
+        acc[i] = w0 * first[i]
+    for c in range(1, 8):
+        row = rows[corner_index[c]]
+        wc = corner_weight[c]
+        for i in range(lo, n):
+            acc[i] += wc * row[i]
+
+
+@njit(cache=True, parallel=True)
+def _slice_normalised_split(guide, grid_val, base_w, band_w, spatial_val, spatial_base, spatial_band,
+                            first_band_layer, inv_cs, inv_cr, eps, missing_value, out):
+    """:func:`_slice_normalised` with layer i's weights from ``band_w`` where the left border
+    reaches (``i >= first_band_layer[x0]``) and from base channel ``i % stride`` elsewhere."""
+    h, w = guide.shape
+    gy_n, gx_n, gz_n, k_n = grid_val.shape
+    n_base = base_w.shape[3]
+    band_n = band_w.shape[1]
+    n_out = out.shape[2]
+    val_rows = grid_val.reshape(gy_n * gx_n * gz_n, k_n)
+    base_rows = base_w.reshape(gy_n * gx_n * gz_n, n_base)
+    band_rows = band_w.reshape(gy_n * band_n * gz_n, k_n)
+    one = np.float32(1.0)
+    for y in prange(h):
+        den_base = np.empty(n_base, dtype=np.float32)
+        den_band = np.empty(k_n, dtype=np.float32)
+        corner_index = np.empty(8, dtype=np.int64)
+        band_index = np.empty(8, dtype=np.int64)
+        corner_weight = np.empty(8, dtype=np.float32)
+        y0, ty = _hat(y * inv_cs, gy_n)
+        for x in range(w):
+            x0, tx = _hat(x * inv_cs, gx_n)
+            z0, tz = _hat(guide[y, x] * inv_cr, gz_n)
+            c = 0
+            for a in range(2):
+                wy = ty if a else one - ty
+                for b in range(2):
+                    wx = tx if b else one - tx
+                    for e in range(2):
+                        wz = tz if e else one - tz
+                        corner_weight[c] = wy * wx * wz
+                        corner_index[c] = ((y0 + a) * gx_n + (x0 + b)) * gz_n + (z0 + e)
+                        band_index[c] = ((y0 + a) * band_n + (x0 + b)) * gz_n + (z0 + e)
+                        c += 1
+            o = out[y, x]
+            _add_corners(val_rows, corner_index, corner_weight, n_out, o)
+            _add_corners(base_rows, corner_index, corner_weight, n_base, den_base)
+            start = first_band_layer[x0]
+            if start < n_out:
+                _add_corners_from(band_rows, band_index, corner_weight, start, n_out, den_band)
+            for i in range(n_out):
+                in_band = i >= start
+                d = den_band[i] if in_band else den_base[i % n_base]
+                if d > eps:
+                    o[i] /= d
+                else:
+                    sv = np.float32(0.0)
+                    sw = np.float32(0.0)
+                    for a in range(2):
+                        wy = ty if a else 1 - ty
+                        for b in range(2):
+                            wx = tx if b else 1 - tx
+                            sv += wy * wx * spatial_val[y0 + a, x0 + b, i]
+                            if in_band:
+                                sw += wy * wx * spatial_band[y0 + a, x0 + b, i]
+                            else:
+                                sw += wy * wx * spatial_base[y0 + a, x0 + b, i % n_base]
+                    o[i] = sv / sw if sw > eps else missing_value
+    return out
+
+
+def _lattice_stride(rows: np.ndarray, cols: np.ndarray, width: int) -> int:
+    """Column stride when the samples are a full lattice in row-major order, else 0.
+
+    Full lattice: every sample row holds the same columns ``ox, ox + s, ...`` up to the
+    right edge (``ox < s``), and the samples come row by row, columns ascending.
+    """
+    if len(rows) < 2:
+        return 0
+    order = rows.astype(np.int64) * width + cols
+    if not np.all(np.diff(order) > 0):
+        return 0
+    columns = np.unique(cols)
+    if len(columns) < 2:
+        return 0
+    stride = int(columns[1] - columns[0])
+    if (stride < 1 or columns[0] >= stride or columns[-1] + stride < width
+            or not np.all(np.diff(columns) == stride)):
+        return 0
+    if len(rows) != len(np.unique(rows)) * len(columns):
+        return 0
+    return stride
+
+
+def _filled_sparse_dsi_split(left, guide, rows, cols, right_values, right_steps, *, stride, geom, min_disp,
+                             num_disp, truncation, step_spacing, step_weight, step_truncation):
+    h, w = guide.shape
+    gy, gx, gz = geom.shape
+    inv_cs, inv_cr = 1.0 / geom.cell_s, 1.0 / geom.cell_r
+    reach = _gaussian_kernel(geom.blur_s).shape[0] // 2      # x-blur radius in cells
+    offset_x = int(cols[0]) if len(cols) else 0
+    layers = np.arange(num_disp, dtype=np.int64)
+    # Last grid cell whose weight in layer i differs from its base channel: the missing
+    # column ox + d_i - stride splats into its hat cell and the next, then the blur
+    # spreads that by `reach` cells.
+    missing = offset_x + min_disp + layers - stride
+    hat_cell = np.minimum(np.floor(np.maximum(missing, 0) * inv_cs).astype(np.int64), gx - 2)
+    last_changed = np.where(missing >= 0, hat_cell + 1 + reach, -1)
+    band_n = int(min(max(int(last_changed.max()) + reach + 2, 1), gx))
+    first_band_layer = np.searchsorted(last_changed, np.arange(gx), side="left").astype(np.int64)
+
+    grid_val = np.zeros(geom.shape + (num_disp,), np.float32)
+    band_w = np.zeros((gy, band_n, gz, num_disp), np.float32)
+    occupied = np.zeros(geom.shape, np.bool_)
+    _splat_sparse_dsi_split(np.asarray(rows, np.int64), np.asarray(cols, np.int64),
+                            np.ascontiguousarray(right_values, np.float32),
+                            np.ascontiguousarray(right_steps, np.float32), left, guide, int(min_disp),
+                            np.float32(truncation), int(step_spacing), np.float32(step_weight),
+                            np.float32(step_truncation), inv_cs, inv_cr, grid_val, band_w, occupied)
+    base_w = np.zeros(geom.shape + (min(stride, num_disp),), np.float32)
+    first_column = (offset_x + min_disp + np.arange(base_w.shape[3], dtype=np.int64)) % stride
+    _splat_lattice_weights(np.unique(np.asarray(rows, np.int64)), first_column, int(stride), guide,
+                           inv_cs, inv_cr, base_w)
+    band_occupied = np.ascontiguousarray(occupied[:, :band_n])
+    grid_val = _blur_grid(grid_val, geom, occupied)
+    band_w = _blur_grid(band_w, geom, band_occupied)
+    # Base columns left of every layer's first sample are in no layer: no occupancy mask for them.
+    base_w = _blur_grid(base_w, geom, np.ones(geom.shape, np.bool_))
+    spatial_val = np.ascontiguousarray(grid_val.sum(axis=2, dtype=np.float32))
+    spatial_base = np.ascontiguousarray(base_w.sum(axis=2, dtype=np.float32))
+    spatial_band = np.ascontiguousarray(band_w.sum(axis=2, dtype=np.float32))
+    density = len(rows) / float(h * w)
+    eps = np.float32(1e-4 * density * geom.cell_s ** 2)
+    out = np.empty((h, w, num_disp), dtype=np.float32)
+    return _slice_normalised_split(guide, grid_val, base_w, band_w, spatial_val, spatial_base, spatial_band,
+                                   first_band_layer, np.float32(inv_cs), np.float32(inv_cr), eps,
+                                   np.float32(truncation), out)
+
+
 def sparse_joint_bilateral(guide: np.ndarray, rows: np.ndarray, cols: np.ndarray, values: np.ndarray, *,
                            sigma_s: float, sigma_r: float, missing_value: float = 0.0,
                            cells_per_sigma_s: float = 2.0, cells_per_sigma_r: float = 2.0) -> np.ndarray:
@@ -389,12 +604,18 @@ def filled_sparse_dsi(left: np.ndarray, guide: np.ndarray, rows: np.ndarray, col
     h, w = guide.shape
     geom = grid_geometry(h, w, float(guide.max(initial=0.0)), sigma_s=sigma_s, sigma_r=sigma_r,
                          cells_per_sigma_s=cells_per_sigma_s, cells_per_sigma_r=cells_per_sigma_r)
-    grid_val = np.zeros(geom.shape + (num_disp,), np.float32)
-    grid_w = np.zeros(geom.shape + (num_disp,), np.float32)
-    occupied = np.zeros(geom.shape, np.bool_)
     if right_steps is None:
         right_steps = np.full(len(rows), np.nan, np.float32)
         step_weight = 0.0
+    stride = _lattice_stride(np.asarray(rows, np.int64), np.asarray(cols, np.int64), w) if min_disp >= 0 else 0
+    if stride and num_disp > stride:
+        return _filled_sparse_dsi_split(left, guide, rows, cols, right_values, right_steps, stride=stride,
+                                        geom=geom, min_disp=int(min_disp), num_disp=int(num_disp),
+                                        truncation=truncation, step_spacing=step_spacing,
+                                        step_weight=step_weight, step_truncation=step_truncation)
+    grid_val = np.zeros(geom.shape + (num_disp,), np.float32)
+    grid_w = np.zeros(geom.shape + (num_disp,), np.float32)
+    occupied = np.zeros(geom.shape, np.bool_)
     _splat_sparse_dsi(np.asarray(rows, np.int64), np.asarray(cols, np.int64),
                       np.ascontiguousarray(right_values, np.float32),
                       np.ascontiguousarray(right_steps, np.float32), left, guide, int(min_disp),

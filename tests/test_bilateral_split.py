@@ -1,0 +1,51 @@
+"""The stride-periodic weight grids of the Sparse fill give exactly the per-layer result."""
+
+import numpy as np
+import pytest
+
+from stereobudget import bilateral
+from stereobudget.container import encode_image
+from stereobudget.cost import sample_row_steps, to_float_image, to_gray
+from stereobudget.sampling import SamplingPattern, grid_shape
+from stereobudget.scenes import make_scene
+
+
+@pytest.fixture(scope="module")
+def scene():
+    return make_scene("slanted", height=72, width=150, max_disp=24, seed=2)
+
+
+def _inputs(scene, pattern):
+    samples = encode_image(scene.right, pattern=pattern)
+    rows, cols = samples.positions()
+    values = to_float_image(samples.values_rgb()[:, None, :])[:, 0, :]
+    left = to_float_image(scene.left)
+    return left, to_gray(left), rows, cols, values, samples
+
+
+@pytest.mark.parametrize("stride, offset_x, offset_y, min_disp, num_disp, steps", [
+    (5, 0, 0, 0, 25, True), (4, 3, 1, 0, 25, False), (3, 1, 2, 6, 19, True), (6, 5, 0, 2, 13, False)])
+def test_split_weights_are_bit_identical(scene, monkeypatch, stride, offset_x, offset_y, min_disp, num_disp, steps):
+    pattern = SamplingPattern("grid", stride, stride, offset_x, offset_y)
+    left, guide, rows, cols, values, samples = _inputs(scene, pattern)
+    extra = {}
+    if steps:
+        lattice = to_gray(values.reshape(grid_shape(pattern, samples.height, samples.width) + (-1,)))
+        extra = dict(right_steps=sample_row_steps(lattice).ravel(), step_spacing=stride, step_weight=0.4)
+    assert bilateral._lattice_stride(np.asarray(rows, np.int64), np.asarray(cols, np.int64), 150) == stride
+    kwargs = dict(min_disp=min_disp, num_disp=num_disp, sigma_s=2.0 * stride, sigma_r=15.0, truncation=15.0, **extra)
+    split = bilateral.filled_sparse_dsi(left, guide, rows, cols, values, **kwargs)
+    monkeypatch.setattr(bilateral, "_lattice_stride", lambda *args: 0)
+    per_layer = bilateral.filled_sparse_dsi(left, guide, rows, cols, values, **kwargs)
+    np.testing.assert_array_equal(split, per_layer)
+
+
+def test_lattice_detection_rejects_other_layouts(scene):
+    _, _, rows, cols, _, _ = _inputs(scene, SamplingPattern("jitter", 4, 4, seed=1))
+    assert bilateral._lattice_stride(np.asarray(rows, np.int64), np.asarray(cols, np.int64), 150) == 0
+    _, _, rows, cols, _, _ = _inputs(scene, SamplingPattern("grid", 4, 4))
+    rows, cols = np.asarray(rows, np.int64), np.asarray(cols, np.int64)
+    assert bilateral._lattice_stride(rows[::-1], cols[::-1], 150) == 0      # not row-major
+    assert bilateral._lattice_stride(rows[:-1], cols[:-1], 150) == 0        # a sample missing
+    keep = cols < 100
+    assert bilateral._lattice_stride(rows[keep], cols[keep], 150) == 0      # stops short of the edge
