@@ -846,8 +846,12 @@ def _dask_client(scheduler, workers: int, threads: int | None):
     if not isinstance(scheduler, str):
         return scheduler, None, False
     if scheduler == "local":
+        # Shutdown races (a worker's last heartbeat to a closed scheduler) are logged by
+        # dask as tracebacks; our results come back as dicts, so keep its logs quiet
+        # unless debugging.
+        quiet = logging.DEBUG if log.getEffectiveLevel() <= logging.DEBUG else logging.CRITICAL
         cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True,
-                               dashboard_address=None)
+                               dashboard_address=None, silence_logs=quiet)
         return Client(cluster), cluster, True
     try:
         return Client(scheduler, timeout="20s"), None, True

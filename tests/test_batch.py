@@ -321,17 +321,17 @@ def test_killed_batch_resumes_without_redoing_finished_files(tmp_path):
     proc.send_signal(signal.SIGTERM)
     stdout, stderr = proc.communicate(timeout=60)
     assert proc.returncode == 130, stderr
-    assert "Traceback" not in stderr
-    assert no_temp_files(out)
+    assert "Traceback" not in stderr, stderr
+    assert no_temp_files(out), sorted(p.name for p in out.iterdir())
     finished = {p.stem for p in out.glob("*.png")} & {p.stem for p in out.glob("*.pfm")}
-    assert 1 <= len(finished) < 16, "the batch should have been killed part-way"
+    assert 1 <= len(finished) < 16, ("the batch should have been killed part-way", sorted(finished), stderr)
     mtimes = {p.name: p.stat().st_mtime_ns for p in out.iterdir()}
 
     rerun = subprocess.run(args, capture_output=True, text=True, timeout=300)
     assert rerun.returncode == 0, rerun.stderr
     status = {Path(r["left"]).stem: r["status"] for r in json_lines(rerun.stdout)}
     assert len(status) == 16
-    assert {s for s, st in status.items() if st == "skipped"} == finished
+    assert {s for s, st in status.items() if st == "skipped"} == finished, (status, finished, stderr)
     assert all(st == "ok" for s, st in status.items() if s not in finished)
     for name, mtime in mtimes.items():
         if Path(name).stem in finished:
@@ -346,3 +346,33 @@ def test_decode_batch_json_into_closed_pipe_is_quiet(tmp_path):
     proc = subprocess.run(cmd, shell=True, executable="/bin/bash", capture_output=True, text=True, timeout=120)
     assert proc.stderr == "" and proc.returncode == 0
     assert no_temp_files(tmp_path / "D")
+
+
+def test_progress_bar_only_on_a_terminal(tmp_path):
+    import pty
+    _, right = motorcycle(8)
+    (tmp_path / "in").mkdir()
+    for i in range(3):
+        write_png(tmp_path / "in" / f"f{i}.png", right)
+
+    def stderr_on_a_terminal(*extra):
+        master, slave = pty.openpty()
+        proc = subprocess.Popen([SB_ENCODE, "in", "-o", "out/{stem}.sbs", "-j", "1", "--overwrite", *extra],
+                                cwd=tmp_path, stdout=subprocess.PIPE, stderr=slave)
+        os.close(slave)
+        chunks = []
+        while True:
+            try:
+                chunk = os.read(master, 4096)
+            except OSError:          # EIO: the child closed the terminal
+                break
+            if not chunk:
+                break
+            chunks.append(chunk)
+        os.close(master)
+        assert proc.wait(timeout=60) == 0
+        return b"".join(chunks).decode(errors="replace")
+
+    shown = stderr_on_a_terminal()
+    assert "100%" in shown and "sb-encode" in shown
+    assert stderr_on_a_terminal("-q") == ""
