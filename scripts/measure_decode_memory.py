@@ -24,8 +24,7 @@ from stereobudget.sampling import SamplingPattern
 from stereobudget.decoders import decode
 from stereobudget.limits import estimate_decode_memory
 
-height, width, num_disp, method, stride = json.loads(sys.argv[1])
-kind = "downsample" if method == "downsample" else "grid"
+height, width, num_disp, method, stride, kind = json.loads(sys.argv[1])
 s = 1 if method == "full" else stride
 
 def pair(h, w):
@@ -48,24 +47,29 @@ def rss(field):
                 return int(line.split()[1]) * 1024
 
 l, smp, nd = run(40, 64, 8)
-decode(l, smp, max_disp=nd - 1, method=method, max_memory=None)
+import inspect
+# The whole frame at once (no automatic tiling): that is what the estimate describes.
+whole = {"tile_rows": 0} if "tile_rows" in inspect.signature(decode).parameters else {}
+decode(l, smp, max_disp=nd - 1, method=method, **whole)
 left, samples, nd = run(height, width, num_disp)
 with open("/proc/self/clear_refs", "w") as f:
     f.write("5")
 rest = rss("VmRSS")
-decode(left, samples, max_disp=nd - 1, method=method, max_memory=None)
+decode(left, samples, max_disp=nd - 1, method=method, **whole)
 peak = rss("VmHWM")
 print(json.dumps({"height": height, "width": width, "num_disp": num_disp, "method": method,
-                  "stride": s, "measured": peak - rest,
+                  "stride": s, "pattern": kind, "measured": peak - rest,
                   "estimate": estimate_decode_memory(height, width, num_disp, method,
                                                      stride_x=s, stride_y=s)}))
 """
 
 DEFAULT_CASES = [
-    (375, 450, 60, "sparse", 5), (375, 450, 60, "hybrid", 5), (375, 450, 60, "full", 1),
-    (375, 450, 60, "downsample", 5), (375, 450, 60, "hybrid", 3), (375, 450, 60, "sparse", 2),
-    (900, 1152, 96, "sparse", 5), (900, 1152, 96, "hybrid", 5), (900, 1152, 96, "full", 1),
-    (900, 1152, 96, "downsample", 5), (900, 1152, 96, "hybrid", 3),
+    (375, 450, 60, "sparse", 5, "grid"), (375, 450, 60, "hybrid", 5, "grid"), (375, 450, 60, "full", 1, "grid"),
+    (375, 450, 60, "downsample", 5, "downsample"), (375, 450, 60, "hybrid", 3, "grid"),
+    (375, 450, 60, "sparse", 2, "grid"), (375, 450, 60, "hybrid", 5, "jitter"), (375, 450, 60, "sparse", 3, "fps"),
+    (900, 1152, 96, "sparse", 5, "grid"), (900, 1152, 96, "hybrid", 5, "grid"), (900, 1152, 96, "full", 1, "grid"),
+    (900, 1152, 96, "downsample", 5, "downsample"), (900, 1152, 96, "hybrid", 3, "grid"),
+    (900, 1152, 96, "hybrid", 5, "jitter"),
 ]
 
 
@@ -80,11 +84,13 @@ def main(argv=None) -> int:
     parser.add_argument("--json", help="Write the results to this JSON file.")
     args = parser.parse_args(argv)
     results = []
-    print(f"{'size':>10} {'D':>4} {'method':>10} {'stride':>6} {'measured':>10} {'estimate':>10} {'ratio':>6}")
+    print(f"{'size':>10} {'D':>4} {'method':>10} {'pattern':>10} {'stride':>6} {'measured':>10} "
+          f"{'estimate':>10} {'ratio':>6}")
     for case in DEFAULT_CASES:
         r = measure(case)
         results.append(r)
-        print(f"{r['width']:>5}x{r['height']:<4} {r['num_disp']:>4} {r['method']:>10} {r['stride']:>6} "
+        print(f"{r['width']:>5}x{r['height']:<4} {r['num_disp']:>4} {r['method']:>10} {r['pattern']:>10} "
+              f"{r['stride']:>6} "
               f"{r['measured'] / 2**20:>8.1f}Mi {r['estimate'] / 2**20:>8.1f}Mi "
               f"{r['estimate'] / max(r['measured'], 1):>6.2f}", flush=True)
     if args.json:
