@@ -435,9 +435,13 @@ def _slice_normalised_split(guide, grid_val, base_w, band_w, spatial_val, spatia
             start = first_band_layer[x0]
             if start < n_out:
                 _add_corners_from(band_rows, band_index, corner_weight, start, n_out, den_band)
+            base_channel = 0      # i % n_base, without an integer division per layer
             for i in range(n_out):
                 in_band = i >= start
-                d = den_band[i] if in_band else den_base[i % n_base]
+                d = den_band[i] if in_band else den_base[base_channel]
+                base_channel += 1
+                if base_channel == n_base:
+                    base_channel = 0
                 if d > eps:
                     o[i] /= d
                 else:
