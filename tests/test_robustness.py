@@ -236,7 +236,7 @@ def test_image_reader_fuzz_ends_in_image_errors(index, cut, flips):
 
 def test_fuzz_script_runs_clean(tmp_path):
     proc = subprocess.run([sys.executable, str(REPO / "scripts" / "fuzz_sample_file.py"), "--max-cases", "40",
-                           "--seconds", "60", "--seed", "3", "--cli-every", "10", "--subprocess-every", "0",
+                           "--seconds", "60", "--seed", "3", "--cli-every", "10", "--subprocess-every", "1000",
                            "--save-dir", str(tmp_path / "fail"), "--json", str(tmp_path / "r.json")],
                           capture_output=True, text=True, timeout=300)
     assert proc.returncode == 0, proc.stderr[-3000:]
@@ -244,6 +244,7 @@ def test_fuzz_script_runs_clean(tmp_path):
     assert result["cases"] == 40
     assert sum(result["decode"].values()) == 40
     assert result["decode"].get("ok", 0) > 0 and len(result["decode"]) >= 4
+    assert sum(result["cli_runner"].values()) == 4 and sum(result["subprocess"].values()) == 1
     assert not (tmp_path / "fail").exists()
 
 
