@@ -12,9 +12,13 @@ OpenCV is imported lazily inside the functions that use it, so the camera-side
 
 from __future__ import annotations
 
+import contextlib
 import io
 import logging
+import os
 import struct
+import sys
+import tempfile
 import warnings
 from pathlib import Path
 
@@ -131,6 +135,39 @@ def sniff_image_size(data: bytes):
 
 # --- decoding --------------------------------------------------------------------------
 
+@contextlib.contextmanager
+def _native_stderr_captured():
+    """Collect what the C decoders print on file descriptor 2 meanwhile (a list of lines).
+
+    libpng, libjpeg and libtiff (through OpenCV), OpenCV's own log and tifffile's warnings
+    write damage reports straight to stderr; a command must print one line per problem
+    in its own format, so the text is captured here and reported by the caller.
+    """
+    lines: list = []
+    try:
+        sys.stderr.flush()
+        saved = os.dup(2)
+    except (OSError, ValueError, AttributeError):   # no real fd 2 (embedded use): leave it alone
+        yield lines
+        return
+    try:
+        with tempfile.TemporaryFile() as sink:
+            os.dup2(sink.fileno(), 2)
+            try:
+                yield lines
+            finally:
+                try:
+                    sys.stderr.flush()
+                except (OSError, ValueError):
+                    pass
+                os.dup2(saved, 2)
+                sink.seek(0)
+                text = sink.read(64 * 1024).decode("utf-8", "replace")
+                lines.extend(line.strip() for line in text.splitlines() if line.strip())
+    finally:
+        os.close(saved)
+
+
 def _decode_with_opencv(data: bytes):
     import cv2
     buf = np.frombuffer(data, dtype=np.uint8)
@@ -146,7 +183,9 @@ def _decode_fallback(data: bytes):
     if data[:4] in (b"II*\x00", b"MM\x00*", b"II+\x00", b"MM\x00+"):
         try:
             import tifffile
-            return tifffile.imread(io.BytesIO(data), key=0)
+            image = tifffile.imread(io.BytesIO(data), key=0)
+            if image.size:          # a TIFF without readable pages comes back as an empty float array
+                return image
         except Exception:
             pass
     try:
@@ -157,7 +196,8 @@ def _decode_fallback(data: bytes):
             image = iio.imread(io.BytesIO(data), index=0)
     except Exception:
         return None
-    return np.asarray(image)
+    image = np.asarray(image)
+    return image if image.size else None
 
 
 _KIND_NAMES = {"f": "float", "i": "signed integer", "u": "unsigned integer", "c": "complex"}
@@ -239,22 +279,30 @@ def read_image(source, *, name: str | None = None):
         raise ImageReadError("empty file (0 bytes)", path=name)
     if data.startswith(_SBS_MAGIC_PREFIX):
         raise ImageReadError("this is a .sbs sample file, not an image", path=name)
-    size = sniff_image_size(data)
-    if size is not None:
-        problem = dimension_problem(*size)
-        if problem:
-            raise ImageReadError(problem, path=name)
-    image = _decode_with_opencv(data)
-    bgr = True
-    if image is not None and image.ndim == 3 and _png_is_gray(data):
-        # OpenCV expands gray+alpha PNGs to BGRA; keep them gray as stored.
-        image = image[:, :, [0, 3]] if image.shape[2] == 4 else image[:, :, 0]
-    if image is None:
-        image = _decode_fallback(data)
-        bgr = False
+    with _native_stderr_captured() as decoder_messages:
+        size = sniff_image_size(data)
+        if size is not None:
+            problem = dimension_problem(*size)
+            if problem:
+                raise ImageReadError(problem, path=name)
+        image = _decode_with_opencv(data)
+        bgr = True
+        if image is not None and image.ndim == 3 and _png_is_gray(data):
+            # OpenCV expands gray+alpha PNGs to BGRA; keep them gray as stored.
+            image = image[:, :, [0, 3]] if image.shape[2] == 4 else image[:, :, 0]
+        if image is None:
+            image = _decode_fallback(data)
+            bgr = False
+    for message in decoder_messages:
+        log.debug("%s: decoder: %s", name, message)
     if image is None:
         raise ImageReadError("not an image, or a format that cannot be decoded", path=name)
-    return _normalise(image, name=name, bgr=bgr)
+    result = _normalise(image, name=name, bgr=bgr)
+    if decoder_messages:
+        # Decoded, but the decoder saw damage (e.g. a corrupt JPEG stream): say so once.
+        log.warning("%s: the image decoder reported damage: %s", name,
+                    " | ".join(decoder_messages)[:300])
+    return result
 
 
 def parse_raw_size(text: str):

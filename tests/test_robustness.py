@@ -336,6 +336,19 @@ def image_cases(tmp_path_factory):
     nan = np.full((H, W), 1.5, np.float32)
     nan[3, 4] = np.nan
     tifffile.imwrite(d / "nan.tif", nan)
+    # Damaged files whose C decoders print their own complaints on stderr.
+    ok, png = cv2.imencode(".png", left)
+    png = bytearray(png.tobytes())
+    png[100] ^= 0xFF
+    (d / "crc.png").write_bytes(bytes(png))                         # libpng: IDAT CRC error
+    (d / "cut.png").write_bytes(bytes(png[:len(png) // 2]))         # OpenCV: incomplete buffer
+    ok, tif = cv2.imencode(".tiff", left)
+    (d / "cut.tif").write_bytes(tif.tobytes()[:len(tif) // 2])      # libtiff + tifffile warnings
+    ok, jpg = cv2.imencode(".jpg", _texture(5, 60, 80, 3))
+    jpg = bytearray(jpg.tobytes())
+    jpg[len(jpg) // 2] ^= 0xFF
+    jpg[len(jpg) // 2 + 7] ^= 0x55
+    (d / "damaged.jpg").write_bytes(bytes(jpg))                     # libjpeg: decodes, complains
     return d
 
 
@@ -358,7 +371,8 @@ def assert_one_line_error(proc, code, *fragments):
 
 
 BAD_IMAGES = [("text.png", "not an image"), ("empty.png", "empty file"), ("zero.png", "0x0"),
-              ("bomb.png", "100000x100000"), ("nan.tif", "NaN")]
+              ("bomb.png", "100000x100000"), ("nan.tif", "NaN"), ("crc.png", "not an image"),
+              ("cut.png", "not an image"), ("cut.tif", "not an image")]
 
 
 def test_bad_images_through_both_commands(image_cases):
@@ -380,6 +394,16 @@ def test_bad_images_through_both_commands(image_cases):
     for proc, (code, path, fragment) in zip(_run_all(commands), expected):
         assert_one_line_error(proc, code, path, fragment)
     assert not list(d.glob("*.pfm")) and not list(d.glob("*.png.sbs")) and not list(d.glob("*.tif.sbs"))
+
+
+def test_damage_the_decoder_survived_is_one_warning_line(image_cases):
+    d = image_cases
+    proc = subprocess.run([SB_ENCODE, str(d / "damaged.jpg"), "-o", str(d / "damaged.sbs"), "--overwrite"],
+                          capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 0, proc.stderr
+    lines = [line for line in proc.stderr.splitlines() if line.strip()]
+    assert len(lines) == 1 and lines[0].startswith("sb-encode: ") and "reported damage" in lines[0], lines
+    assert read_samples((d / "damaged.sbs").read_bytes()).width == 80
 
 
 def test_alpha_channel_is_dropped_with_a_note(image_cases):
