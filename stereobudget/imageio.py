@@ -19,6 +19,7 @@ import os
 import struct
 import sys
 import tempfile
+import threading
 import warnings
 from pathlib import Path
 
@@ -144,6 +145,10 @@ def _native_stderr_captured():
     in its own format, so the text is captured here and reported by the caller.
     """
     lines: list = []
+    if threading.current_thread() is not threading.main_thread():
+        # fd 2 is process-wide: swapping it from several threads could lose it for good.
+        yield lines
+        return
     try:
         sys.stderr.flush()
         saved = os.dup(2)
