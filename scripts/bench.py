@@ -77,15 +77,18 @@ def _run_child(code: str, payload: dict, timeout: float = 3600) -> dict:
 
 
 def smooth_pair(height: int, width: int, disparity: int, seed: int = 0):
-    """A smooth random RGB texture and the same texture shifted by ``disparity`` (right view)."""
+    """A smooth random RGB texture (left view) and the same texture seen with ``disparity`` (right view).
+
+    Left pixel ``x`` shows the texture column ``x``; right pixel ``x - disparity`` shows the same.
+    """
     import cv2
     rng = np.random.default_rng(seed)
     coarse = rng.integers(0, 256, size=(height // 4 + 2, (width + disparity) // 4 + 2, 3), dtype=np.uint8)
     big = cv2.resize(coarse, (width + disparity, height), interpolation=cv2.INTER_CUBIC)
     fine = rng.integers(-12, 13, size=big.shape, dtype=np.int16)     # some high-frequency texture
     big = np.clip(big.astype(np.int16) + fine, 0, 255).astype(np.uint8)
-    left = np.ascontiguousarray(big[:, disparity:])
-    right = np.ascontiguousarray(big[:, :width])
+    left = np.ascontiguousarray(big[:, :width])
+    right = np.ascontiguousarray(big[:, disparity:disparity + width])
     return left, right
 
 
@@ -285,18 +288,31 @@ def scaling_report(rows: list[dict], budget: int) -> list[str]:
         lines.append(f"| {p['method']} | {size} | {p['nd']} | {p['wall']:.2f} | {p['ns_per_nd']:.1f} | "
                      f"{p['cpu_ns_per_nd']:.1f} | {p['peak'] / GIB:.2f} GiB | {p['estimate'] / GIB:.1f} GiB | {note} |")
     for method in sorted({p["method"] for p in rows}):
-        values = [p["ns_per_nd"] for p in rows if p["method"] == method and "ns_per_nd" in p and not p.get("tile_rows")]
-        if values:
-            mid = statistics.median(values)
-            lines.append("")
-            lines.append(f"{method}: untiled ns/(px·disp) spans {min(values):.1f}–{max(values):.1f} "
-                         f"({100 * (min(values) / mid - 1):+.0f} % / {100 * (max(values) / mid - 1):+.0f} % "
-                         f"around the median {mid:.1f}).")
+        for key, label in (("ns_per_nd", "wall"), ("cpu_ns_per_nd", "CPU")):
+            values = [p[key] for p in rows if p["method"] == method and key in p and not p.get("tile_rows")]
+            if values:
+                mid = statistics.median(values)
+                lines.append("")
+                lines.append(f"{method}: untiled {label} ns/(px·disp) spans {min(values):.1f}–{max(values):.1f} "
+                             f"({100 * (min(values) / mid - 1):+.0f} % / {100 * (max(values) / mid - 1):+.0f} % "
+                             f"around the median {mid:.1f}).")
     return lines + [""]
 
 
 # --------------------------------------------------------------------------------------
 # 4. command line
+
+
+def _timed_process(cmd, **kwargs):
+    """Run a command; (wall seconds, CPU seconds of the child incl. its threads, CompletedProcess)."""
+    import resource
+    before = resource.getrusage(resource.RUSAGE_CHILDREN)
+    t = time.perf_counter()
+    proc = subprocess.run(cmd, **kwargs)
+    wall = time.perf_counter() - t
+    after = resource.getrusage(resource.RUSAGE_CHILDREN)
+    cpu = (after.ru_utime - before.ru_utime) + (after.ru_stime - before.ru_stime)
+    return wall, cpu, proc
 
 
 def cli_benchmark(data_dir: Path, *, repeats: int) -> dict:
@@ -313,25 +329,25 @@ def cli_benchmark(data_dir: Path, *, repeats: int) -> dict:
             cmd = [_bin_path("sb-decode"), str(data_dir / "teddy" / "left.png"), str(tmp / "teddy.sbs"),
                    "--max-disp", "60", "--method", method, "--disparity", str(tmp / "d.pfm"), "--overwrite", "--json"]
             subprocess.run(cmd, capture_output=True, check=True)       # warms the numba cache
-            walls, inner = [], []
+            walls, cpus, inner = [], [], []
             for _ in range(repeats):
-                t = time.perf_counter()
-                proc = subprocess.run(cmd, capture_output=True, text=True, check=True)
-                walls.append(time.perf_counter() - t)
+                wall, cpu, proc = _timed_process(cmd, capture_output=True, text=True, check=True)
+                walls.append(wall)
+                cpus.append(cpu)
                 try:
                     inner.append(json.loads(proc.stdout.strip().splitlines()[-1])["timings"]["total"])
                 except (ValueError, KeyError, IndexError):
                     pass
-            out[f"sb-decode {method}"] = {"wall": _median(walls), "inner_total": _median(inner)}
+            out[f"sb-decode {method}"] = {"wall": _median(walls), "cpu": _median(cpus), "inner_total": _median(inner)}
         enc = [_bin_path("sb-encode"), str(tmp / "right.rgb"), "--raw", f"{right.shape[1]}x{right.shape[0]}",
                "--pix-fmt", "rgb24", "-o", str(tmp / "e.sbs"), "--overwrite"]
         subprocess.run(enc, capture_output=True, check=True)
-        walls = []
+        walls, cpus = [], []
         for _ in range(repeats):
-            t = time.perf_counter()
-            subprocess.run(enc, capture_output=True, check=True)
-            walls.append(time.perf_counter() - t)
-        out["sb-encode --raw"] = {"wall": _median(walls)}
+            wall, cpu, _ = _timed_process(enc, capture_output=True, check=True)
+            walls.append(wall)
+            cpus.append(cpu)
+        out["sb-encode --raw"] = {"wall": _median(walls), "cpu": _median(cpus)}
         # What the encoder process imports (it must stay light: no numba, no OpenCV).
         probe = ("import sys\nfrom stereobudget.cli.encode import main\n"
                  f"try:\n    main({enc[1:]!r})\nexcept SystemExit:\n    pass\n"
@@ -340,18 +356,28 @@ def cli_benchmark(data_dir: Path, *, repeats: int) -> dict:
         flags = proc.stdout.split()
         out["sb-encode imports numba"] = flags[-2] if len(flags) >= 2 else "?"
         out["sb-encode imports cv2"] = flags[-1] if flags else "?"
-        t = time.perf_counter()
-        subprocess.run([sys.executable, "-c", "pass"], check=True)
-        out["bare python"] = {"wall": time.perf_counter() - t}
+        walls, cpus = [], []
+        for _ in range(repeats):
+            wall, cpu, _ = _timed_process([sys.executable, "-c", "pass"], check=True)
+            walls.append(wall)
+            cpus.append(cpu)
+        out["bare python"] = {"wall": _median(walls), "cpu": _median(cpus)}
+        walls, cpus = [], []
+        for _ in range(repeats):
+            wall, cpu, _ = _timed_process([sys.executable, "-c", "import stereobudget.decoders, cv2"], check=True)
+            walls.append(wall)
+            cpus.append(cpu)
+        out["python -c 'import stereobudget.decoders, cv2'"] = {"wall": _median(walls), "cpu": _median(cpus)}
     return out
 
 
 def cli_report(r: dict) -> list[str]:
     lines = ["### Command line (process wall time, median; warm numba cache)", "",
-             "| command | wall s | in-process total s |", "|---|---:|---:|"]
+             "| command | wall s | CPU s (process, all threads) | in-process total s |", "|---|---:|---:|---:|"]
     for k, v in r.items():
         if isinstance(v, dict):
-            lines.append(f"| {k} | {v['wall']:.3f} | {_fmt_s(v.get('inner_total', float('nan')))} |")
+            lines.append(f"| {k} | {v['wall']:.3f} | {_fmt_s(v.get('cpu', float('nan')))} | "
+                         f"{_fmt_s(v.get('inner_total', float('nan')))} |")
     lines.append("")
     lines.append(f"sb-encode --raw imports numba: {r.get('sb-encode imports numba')}, "
                  f"OpenCV: {r.get('sb-encode imports cv2')}.")
@@ -407,7 +433,7 @@ def encoder_benchmark(data_dir: Path, *, min_seconds: float) -> dict:
         ok, buf = cv2.imencode(".webp", bgr, [cv2.IMWRITE_WEBP_QUALITY, int(q)])
         return buf
 
-    for name, fn, lo, hi in (("JPEG 2000", jp2, 0, 1000), ("WebP", webp, 1, 100)):
+    for name, fn, lo, hi in (("JPEG 2000", jp2, 1, 1000), ("WebP", webp, 1, 100)):
         try:
             q, n = _quality_for_bytes(fn, target, lo, hi)
             out[name] = {"quality": q, "bytes": n, "fps": _throughput(lambda: fn(q), min_seconds)}
@@ -427,7 +453,7 @@ def encoder_report(r: dict, cli: dict | None) -> list[str]:
             lines.append(f"| OpenCV {name} | – | – | unavailable: {v['error']} |")
         else:
             lines.append(f"| OpenCV {name} | {v['quality']} | {v['bytes']} | {v['fps']:.0f} |")
-    if cli and "sb-encode --raw" in cli:
+    if cli and "sb-encode --raw" in cli and "bare python" in cli:
         lines.append("")
         lines.append(f"Per process: `sb-encode --raw` takes {cli['sb-encode --raw']['wall']:.3f} s wall "
                      f"({1 / cli['sb-encode --raw']['wall']:.1f} frames/s if each frame is its own process; "
@@ -495,6 +521,9 @@ def parse_args(argv=None):
                         help="about a minute: 5 Teddy runs, scaling at 0.25/1 MP x 64 only, short encoder timing")
     parser.add_argument("--repeats", type=int, default=None, help="timed runs per measurement (default 7, quick 5)")
     parser.add_argument("--skip-scaling", action="store_true")
+    parser.add_argument("--sections", default="teddy,scaling,cli,encoder",
+                        help="comma-separated subset of teddy,scaling,cli,encoder")
+    parser.add_argument("--scaling-methods", default="sparse,hybrid", help="methods of the scaling section")
     parser.add_argument("--big", action="store_true", help="also decode a 12 MP frame with 256 disparities")
     parser.add_argument("--big-methods", default="sparse", help="methods of the --big run (comma-separated)")
     parser.add_argument("--budget", type=float, default=8.0, help="memory budget in GiB for scaling / --big")
@@ -514,16 +543,22 @@ def main(argv=None) -> int:
     results: dict = {"machine": machine_info()}
     report = ["## Benchmark", ""]
 
-    print("teddy ...", file=sys.stderr, flush=True)
-    results["teddy"] = teddy_benchmark(data_dir, repeats=repeats)
-    if not args.skip_scaling:
+    sections = set(args.sections.split(","))
+    if args.skip_scaling:
+        sections.discard("scaling")
+    if "teddy" in sections:
+        print("teddy ...", file=sys.stderr, flush=True)
+        results["teddy"] = teddy_benchmark(data_dir, repeats=repeats)
+    if "scaling" in sections:
         sizes, disps = ((0.25, 1.0), (64,)) if args.quick else ((0.25, 1.0, 4.0), (64, 128, 256))
-        results["scaling"] = scaling(sizes=sizes, disparities=disps, methods=("sparse", "hybrid"), budget=budget,
-                                     repeats=1 if not args.quick else 1, per_point_timeout=3600)
-    print("command line ...", file=sys.stderr, flush=True)
-    results["cli"] = cli_benchmark(data_dir, repeats=3 if args.quick else 5)
-    print("encoder ...", file=sys.stderr, flush=True)
-    results["encoder"] = encoder_benchmark(data_dir, min_seconds=0.3 if args.quick else 1.0)
+        results["scaling"] = scaling(sizes=sizes, disparities=disps, methods=tuple(args.scaling_methods.split(",")),
+                                     budget=budget, repeats=1, per_point_timeout=3600)
+    if "cli" in sections:
+        print("command line ...", file=sys.stderr, flush=True)
+        results["cli"] = cli_benchmark(data_dir, repeats=3 if args.quick else 5)
+    if "encoder" in sections:
+        print("encoder ...", file=sys.stderr, flush=True)
+        results["encoder"] = encoder_benchmark(data_dir, min_seconds=0.3 if args.quick else 1.0)
     if args.big:
         results["big"] = {}
         for method in args.big_methods.split(","):
@@ -538,11 +573,14 @@ def main(argv=None) -> int:
                f"Load average at start {m['loadavg_start'][0]:.1f}, at end {m['loadavg_end'][0]:.1f} "
                f"(a load above {m['nproc']} means other jobs share the cores: wall times are then inflated, "
                f"CPU times and same-run ratios are the steadier figures).", ""]
-    report += teddy_report(results["teddy"])
+    if "teddy" in results:
+        report += teddy_report(results["teddy"])
     if "scaling" in results:
         report += scaling_report(results["scaling"], budget)
-    report += cli_report(results["cli"])
-    report += encoder_report(results["encoder"], results["cli"])
+    if "cli" in results:
+        report += cli_report(results["cli"])
+    if "encoder" in results:
+        report += encoder_report(results["encoder"], results.get("cli"))
     if "big" in results:
         report += big_report(results["big"], budget)
     print("\n".join(report))
