@@ -497,13 +497,16 @@ def big_frame(*, method: str, budget: int) -> dict:
 
 def big_report(results: dict, budget: int) -> list[str]:
     lines = ["### 12 MP (4000x3000), 256 disparities, stride 5, tiled automatically", "",
-             "| method | whole-frame estimate | bands (rows + 2x overlap) | wall s | CPU s | peak RSS | "
+             "| method | whole-frame estimate | bands | wall s | CPU s | peak RSS | "
              "bad > 1 px (shift 64) |", "|---|---:|---|---:|---:|---:|---:|"]
     for method, r in results.items():
         if "error" in r:
             lines.append(f"| {method} | – | – | – | – | – | failed: {r['error']} |")
             continue
-        lines.append(f"| {method} | {r['whole_frame_estimate'] / GIB:.1f} GiB | {r['tile_rows']} | {r['wall']:.1f} | "
+        from stereobudget.decoders import DEFAULT_TILE_OVERLAP
+        bands = (f"{-(-3000 // r['tile_rows'])} x {r['tile_rows']} rows (+{DEFAULT_TILE_OVERLAP} above/below)"
+                 if r["tile_rows"] else "untiled")
+        lines.append(f"| {method} | {r['whole_frame_estimate'] / GIB:.1f} GiB | {bands} | {r['wall']:.1f} | "
                      f"{r['cpu']:.1f} | {r['peak'] / GIB:.2f} GiB | {100 * r['bad1']:.2f} % |")
     lines.append("")
     lines.append(f"Memory budget given to decode: {budget / GIB:.0f} GiB.")
