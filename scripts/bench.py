@@ -24,7 +24,7 @@ Sections (each timed in this one run, so the ratios compare like with like):
 
 Examples
 --------
-    python scripts/bench.py --quick                  # about a minute
+    python scripts/bench.py --quick                  # 1-3 minutes
     python scripts/bench.py --json bench.json        # full report
     python scripts/bench.py --big --skip-scaling     # the 12 MP run only (plus Teddy)
 """
@@ -521,7 +521,7 @@ def parse_args(argv=None):
                                      formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--data", type=Path, default=None, help="Middlebury folder (default: ../shared/data/middlebury)")
     parser.add_argument("--quick", action="store_true",
-                        help="about a minute: 5 Teddy runs, scaling at 0.25/1 MP x 64 only, short encoder timing")
+                        help="1-3 minutes: 5 Teddy runs, scaling at 0.25/1 MP x 64 only, short encoder timing")
     parser.add_argument("--repeats", type=int, default=None, help="timed runs per measurement (default 7, quick 5)")
     parser.add_argument("--skip-scaling", action="store_true")
     parser.add_argument("--sections", default="teddy,scaling,cli,encoder",
