@@ -36,7 +36,9 @@ def _stand_in(name, seed):
 
 def test_quick_reproduction_on_synthetic_scenes(script, tmp_path):
     runner = script.Runner([_stand_in("tsukuba", 1), _stand_in("venus", 2)])
-    results = script.reproduce(runner, tmp_path, (5,))
+    # Fig. 8 reads the Middlebury files themselves (scripts/reproduce_synthesis.py), so it is left out here.
+    results = script.reproduce(runner, tmp_path, (5,),
+                               experiments=tuple(e for e in script.ALL_EXPERIMENTS if e != "fig8"))
     summary = (tmp_path / "summary.md").read_text()
     for heading in ("Table 1", "Table 2", "Fig. 5(a)", "Fig. 5(b)", "Fig. 5(c)", "Fig. 5(d)", "Headline"):
         assert heading in summary
