@@ -357,7 +357,11 @@ def block_lowpass(image_f32: np.ndarray, sx: int, sy: int) -> np.ndarray:
     import cv2
 
     def kernels(s):
-        box = np.full(s, 1.0 / s, np.float32)
+        # A centred box of width s: for even s, s + 1 taps with half weights at the ends
+        # (a plain even-length box would shift I1 by half a pixel against I2's block centres).
+        box = np.full(s + 1 - s % 2, 1.0 / s, np.float32)
+        if s % 2 == 0:
+            box[0] = box[-1] = 0.5 / s
         tri = 1.0 - np.abs(np.arange(-s + 1, s, dtype=np.float32)) / s
         return box, (tri / tri.sum()).astype(np.float32)
 
