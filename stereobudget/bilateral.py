@@ -115,38 +115,6 @@ def _splat_points(rows, cols, values, guide, inv_cs, inv_cr, grid_val, grid_w, o
                     occupied[y0 + a, x0 + b, z0 + c] = True
 
 
-@njit(cache=True)
-def _splat_sparse_dsi(rows, cols, right_values, right_steps, left, guide, min_disp, truncation,
-                      step_spacing, step_weight, step_truncation, inv_cs, inv_cr, grid_val, grid_w, occupied):
-    """Splat Eq. (2): right sample k at (row, col) meets left pixel (row, col + d) in layer d."""
-    gy_n, gx_n, gz_n, num_disp = grid_val.shape
-    w = left.shape[1]
-    for k in range(rows.shape[0]):
-        y = rows[k]
-        y0, ty = _hat(y * inv_cs, gy_n)
-        for i in range(num_disp):
-            x = cols[k] + min_disp + i
-            if x < 0 or x >= w:
-                continue
-            left_step = np.float32(np.nan)
-            if step_weight > 0 and x + step_spacing < w:
-                left_step = guide[y, x + step_spacing] - guide[y, x]
-            cost = sparse_pair_cost(left[y, x], right_values[k], left_step, right_steps[k], truncation,
-                                    step_weight, step_truncation)
-            x0, tx = _hat(x * inv_cs, gx_n)
-            z0, tz = _hat(guide[y, x] * inv_cr, gz_n)
-            for a in range(2):
-                wy = ty if a else 1 - ty
-                for b in range(2):
-                    wx = tx if b else 1 - tx
-                    for c in range(2):
-                        wz = tz if c else 1 - tz
-                        wgt = wy * wx * wz
-                        grid_val[y0 + a, x0 + b, z0 + c, i] += wgt * cost
-                        grid_w[y0 + a, x0 + b, z0 + c, i] += wgt
-                        occupied[y0 + a, x0 + b, z0 + c] = True
-
-
 @njit(cache=True, parallel=True)
 def _blur_rows(src, dst, kernel, occupied, occupied_out):
     """Zero-boundary 1-D convolution along axis 1 of an (A, N, B, K) array, skipping empty rows.
@@ -327,7 +295,12 @@ def _normalised_slice(guide, grid_val, grid_w, geom, density, missing_value, cha
 def _splat_sparse_dsi_split(rows, cols, right_values, right_steps, left, guide, min_disp, truncation,
                             step_spacing, step_weight, step_truncation, inv_cs, inv_cr,
                             grid_val, band_w, occupied):
-    """:func:`_splat_sparse_dsi` with the weights of layer i written only into cells [0, B) of ``band_w``."""
+    """Splat Eq. (2): right sample k at (row, col) meets left pixel (row, col + d) in layer d.
+
+    The weights of layer i are written only into x-cells [0, B) of ``band_w`` (B = its
+    second dimension): the regular-grid path keeps just the left-border band per layer;
+    passing a full-width ``band_w`` gives every layer its own complete weight grid.
+    """
     gy_n, gx_n, gz_n, num_disp = grid_val.shape
     band_n = band_w.shape[1]
     w = left.shape[1]
@@ -620,12 +593,12 @@ def filled_sparse_dsi(left: np.ndarray, guide: np.ndarray, rows: np.ndarray, col
     grid_val = np.zeros(geom.shape + (num_disp,), np.float32)
     grid_w = np.zeros(geom.shape + (num_disp,), np.float32)
     occupied = np.zeros(geom.shape, np.bool_)
-    _splat_sparse_dsi(np.asarray(rows, np.int64), np.asarray(cols, np.int64),
-                      np.ascontiguousarray(right_values, np.float32),
-                      np.ascontiguousarray(right_steps, np.float32), left, guide, int(min_disp),
-                      np.float32(truncation), int(step_spacing), np.float32(step_weight),
-                      np.float32(step_truncation), 1.0 / geom.cell_s, 1.0 / geom.cell_r, grid_val, grid_w,
-                      occupied)
+    _splat_sparse_dsi_split(np.asarray(rows, np.int64), np.asarray(cols, np.int64),
+                            np.ascontiguousarray(right_values, np.float32),
+                            np.ascontiguousarray(right_steps, np.float32), left, guide, int(min_disp),
+                            np.float32(truncation), int(step_spacing), np.float32(step_weight),
+                            np.float32(step_truncation), 1.0 / geom.cell_s, 1.0 / geom.cell_r, grid_val, grid_w,
+                            occupied)
     grid_val = _blur_grid(grid_val, geom, occupied)
     grid_w = _blur_grid(grid_w, geom, occupied)
     density = len(rows) / float(h * w)
