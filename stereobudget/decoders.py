@@ -384,6 +384,18 @@ def _upsample_blocks(low: np.ndarray, sx: int, sy: int, h: int, w: int) -> np.nd
     return out.reshape(h, w, low.shape[2])
 
 
+def _resolve_method(left, samples, *, method, params, min_disp, max_disp):
+    """Validate the inputs, pick the method a sample set implies, and adapt the params to I1's noise."""
+    params = params or DecoderParams()
+    method = method or DEFAULT_METHOD
+    if method not in METHODS:
+        raise OptionError(f"unknown method {method!r}; expected one of {', '.join(METHODS)}")
+    check_inputs(left, samples, min_disp=min_disp, max_disp=max_disp)
+    if _is_full_grid(samples):
+        method = "full"
+    return method, adapt_to_noise(params, left, method=method)
+
+
 def decode(left: np.ndarray, samples: SampleSet, *, max_disp: int, min_disp: int = 0,
            method: str | None = None, params: DecoderParams | None = None,
            max_memory: int | None = None, tile_rows: int | None = None,
@@ -425,14 +437,8 @@ def decode(left: np.ndarray, samples: SampleSet, *, max_disp: int, min_disp: int
         The estimate (:func:`stereobudget.limits.estimate_decode_memory`) exceeds
         ``max_memory``; checked before any volume is allocated.
     """
-    params = params or DecoderParams()
-    method = method or DEFAULT_METHOD
-    if method not in METHODS:
-        raise OptionError(f"unknown method {method!r}; expected one of {', '.join(METHODS)}")
-    check_inputs(left, samples, min_disp=min_disp, max_disp=max_disp)
-    if _is_full_grid(samples):
-        method = "full"
-    params = adapt_to_noise(params, left, method=method)
+    method, params = _resolve_method(left, samples, method=method, params=params,
+                                     min_disp=min_disp, max_disp=max_disp)
     overlap = DEFAULT_TILE_OVERLAP if tile_overlap is None else int(tile_overlap)
     if tile_rows is None:
         tile_rows = auto_tile_rows(samples, num_disp=int(max_disp - min_disp + 1), method=method,
@@ -614,13 +620,8 @@ def decode_tiled(left: np.ndarray, samples: SampleSet, *, max_disp: int, min_dis
     DecodeResult
         ``timings`` are summed over the bands.
     """
-    params = params or DecoderParams()
-    method = method or DEFAULT_METHOD
-    if method not in METHODS:
-        raise OptionError(f"unknown method {method!r}; expected one of {', '.join(METHODS)}")
-    check_inputs(left, samples, min_disp=min_disp, max_disp=max_disp)
-    if _is_full_grid(samples):
-        method = "full"
+    method, params = _resolve_method(left, samples, method=method, params=params,
+                                     min_disp=min_disp, max_disp=max_disp)
     if method not in TILED_METHODS or samples.pattern.kind == "downsample":
         raise OptionError(f"tiled decoding supports {', '.join(TILED_METHODS)} on point samples, not "
                           f"{method} on a {samples.pattern.kind} sample file")
