@@ -196,20 +196,23 @@ def _blur_grid(grid: np.ndarray, geom: GridGeometry, occupied: np.ndarray) -> np
 
 
 @njit(cache=True, inline="always")
-def _add_corners(rows, corner_index, corner_weight, n, acc):
-    """acc[:n] = sum over the 8 corners of weight * row, corners added in a fixed order.
+def _trilinear_corners(y0, ty, x0, tx, z0, tz, nx, nz, corner_weight, corner_index):
+    """Weights and flat (y, x, z) row indices of the 8 grid corners around a pixel, in a fixed order.
 
-    One corner per loop keeps each loop to two streams, which the compiler vectorises.
+    ``nx``/``nz`` are the grid's x and z extents, so the same corners index grids of other widths.
     """
-    first = rows[corner_index[0]]
-    w0 = corner_weight[0]
-    for i in range(n):
-        acc[i] = w0 * first[i]
-    for c in range(1, 8):
-        row = rows[corner_index[c]]
-        wc = corner_weight[c]
-        for i in range(n):
-            acc[i] += wc * row[i]
+    # float32 hat weights: a float64 weight would turn every multiply-add of the slice into float64.
+    one = np.float32(1.0)
+    c = 0
+    for a in range(2):
+        wy = ty if a else one - ty
+        for b in range(2):
+            wx = tx if b else one - tx
+            for e in range(2):
+                wz = tz if e else one - tz
+                corner_weight[c] = wy * wx * wz
+                corner_index[c] = ((y0 + a) * nx + (x0 + b)) * nz + (z0 + e)
+                c += 1
 
 
 @njit(cache=True, parallel=True)
@@ -222,7 +225,6 @@ def _slice_normalised(guide, grid_val, grid_w, spatial_val, spatial_w, inv_cs, i
     kw_n = grid_w.shape[3]
     val_rows = grid_val.reshape(gy_n * gx_n * gz_n, k_n)
     w_rows = grid_w.reshape(gy_n * gx_n * gz_n, kw_n)
-    one = np.float32(1.0)
     for y in prange(h):
         den = np.empty(kw_n, dtype=np.float32)
         corner_index = np.empty(8, dtype=np.int64)
@@ -231,20 +233,10 @@ def _slice_normalised(guide, grid_val, grid_w, spatial_val, spatial_w, inv_cs, i
         for x in range(w):
             x0, tx = _hat(x * inv_cs, gx_n)
             z0, tz = _hat(guide[y, x] * inv_cr, gz_n)
-            c = 0
-            # float32 hat weights: a float64 weight would turn every multiply-add below into float64.
-            for a in range(2):
-                wy = ty if a else one - ty
-                for b in range(2):
-                    wx = tx if b else one - tx
-                    for e in range(2):
-                        wz = tz if e else one - tz
-                        corner_weight[c] = wy * wx * wz
-                        corner_index[c] = ((y0 + a) * gx_n + (x0 + b)) * gz_n + (z0 + e)
-                        c += 1
+            _trilinear_corners(y0, ty, x0, tx, z0, tz, gx_n, gz_n, corner_weight, corner_index)
             o = out[y, x]
-            _add_corners(val_rows, corner_index, corner_weight, n_out, o)
-            _add_corners(w_rows, corner_index, corner_weight, kw_n, den)
+            _add_corners_from(val_rows, corner_index, corner_weight, 0, n_out, o)
+            _add_corners_from(w_rows, corner_index, corner_weight, 0, kw_n, den)
             for i in range(n_out):
                 d = den[channel_map[i]]
                 if d > eps:
@@ -355,7 +347,10 @@ def _splat_lattice_weights(sample_rows, first_column, stride, guide, inv_cs, inv
 
 @njit(cache=True, inline="always")
 def _add_corners_from(rows, corner_index, corner_weight, lo, n, acc):
-    """Like :func:`_add_corners` for channels ``[lo, n)`` only."""
+    """acc[lo:n] = sum over the 8 corners of weight * row[lo:n], corners added in a fixed order.
+
+    One corner per loop keeps each loop to two streams, which the compiler vectorises.
+    """
     first = rows[corner_index[0]]
     w0 = corner_weight[0]
     for i in range(lo, n):
@@ -380,7 +375,6 @@ def _slice_normalised_split(guide, grid_val, base_w, band_w, spatial_val, spatia
     val_rows = grid_val.reshape(gy_n * gx_n * gz_n, k_n)
     base_rows = base_w.reshape(gy_n * gx_n * gz_n, n_base)
     band_rows = band_w.reshape(gy_n * band_n * gz_n, k_n)
-    one = np.float32(1.0)
     for y in prange(h):
         den_base = np.empty(n_base, dtype=np.float32)
         den_band = np.empty(k_n, dtype=np.float32)
@@ -391,20 +385,11 @@ def _slice_normalised_split(guide, grid_val, base_w, band_w, spatial_val, spatia
         for x in range(w):
             x0, tx = _hat(x * inv_cs, gx_n)
             z0, tz = _hat(guide[y, x] * inv_cr, gz_n)
-            c = 0
-            for a in range(2):
-                wy = ty if a else one - ty
-                for b in range(2):
-                    wx = tx if b else one - tx
-                    for e in range(2):
-                        wz = tz if e else one - tz
-                        corner_weight[c] = wy * wx * wz
-                        corner_index[c] = ((y0 + a) * gx_n + (x0 + b)) * gz_n + (z0 + e)
-                        band_index[c] = ((y0 + a) * band_n + (x0 + b)) * gz_n + (z0 + e)
-                        c += 1
+            _trilinear_corners(y0, ty, x0, tx, z0, tz, gx_n, gz_n, corner_weight, corner_index)
+            _trilinear_corners(y0, ty, x0, tx, z0, tz, band_n, gz_n, corner_weight, band_index)
             o = out[y, x]
-            _add_corners(val_rows, corner_index, corner_weight, n_out, o)
-            _add_corners(base_rows, corner_index, corner_weight, n_base, den_base)
+            _add_corners_from(val_rows, corner_index, corner_weight, 0, n_out, o)
+            _add_corners_from(base_rows, corner_index, corner_weight, 0, n_base, den_base)
             start = first_band_layer[x0]
             if start < n_out:
                 _add_corners_from(band_rows, band_index, corner_weight, start, n_out, den_band)
