@@ -196,6 +196,18 @@ def _blur_grid(grid: np.ndarray, geom: GridGeometry, occupied: np.ndarray) -> np
 
 
 @njit(cache=True, inline="always")
+def _bilinear(grid2d, y0, ty, x0, tx, channel):
+    """Bilinear value of channel ``channel`` of a (GY, GX, K) grid (the spatial-only fallback)."""
+    acc = np.float32(0.0)
+    for a in range(2):
+        wy = ty if a else 1 - ty
+        for b in range(2):
+            wx = tx if b else 1 - tx
+            acc += wy * wx * grid2d[y0 + a, x0 + b, channel]
+    return acc
+
+
+@njit(cache=True, inline="always")
 def _trilinear_corners(y0, ty, x0, tx, z0, tz, nx, nz, corner_weight, corner_index):
     """Weights and flat (y, x, z) row indices of the 8 grid corners around a pixel, in a fixed order.
 
@@ -244,14 +256,8 @@ def _slice_normalised(guide, grid_val, grid_w, spatial_val, spatial_w, inv_cs, i
                 else:
                     # No sample of similar intensity nearby: fall back to a purely spatial
                     # normalised convolution, then to a constant.
-                    sv = np.float32(0.0)
-                    sw = np.float32(0.0)
-                    for a in range(2):
-                        wy = ty if a else 1 - ty
-                        for b in range(2):
-                            wx = tx if b else 1 - tx
-                            sv += wy * wx * spatial_val[y0 + a, x0 + b, i]
-                            sw += wy * wx * spatial_w[y0 + a, x0 + b, channel_map[i]]
+                    sv = _bilinear(spatial_val, y0, ty, x0, tx, i)
+                    sw = _bilinear(spatial_w, y0, ty, x0, tx, channel_map[i])
                     o[i] = sv / sw if sw > eps else missing_value
     return out
 
@@ -403,17 +409,11 @@ def _slice_normalised_split(guide, grid_val, base_w, band_w, spatial_val, spatia
                 if d > eps:
                     o[i] /= d
                 else:
-                    sv = np.float32(0.0)
-                    sw = np.float32(0.0)
-                    for a in range(2):
-                        wy = ty if a else 1 - ty
-                        for b in range(2):
-                            wx = tx if b else 1 - tx
-                            sv += wy * wx * spatial_val[y0 + a, x0 + b, i]
-                            if in_band:
-                                sw += wy * wx * spatial_band[y0 + a, x0 + b, i]
-                            else:
-                                sw += wy * wx * spatial_base[y0 + a, x0 + b, i % n_base]
+                    sv = _bilinear(spatial_val, y0, ty, x0, tx, i)
+                    if in_band:
+                        sw = _bilinear(spatial_band, y0, ty, x0, tx, i)
+                    else:
+                        sw = _bilinear(spatial_base, y0, ty, x0, tx, i % n_base)
                     o[i] = sv / sw if sw > eps else missing_value
     return out
 

@@ -325,7 +325,7 @@ def _decode_hybrid(left_f, guide, samples, tree, *, min_disp, num_disp, params, 
 
 
 def _decode_downsample(left_f, samples, tree, *, min_disp, num_disp, params, timer):
-    from .refine import left_right_refined_disparity
+    from .refine import full_pair_disparity
     p = samples.pattern
     h, w = samples.height, samples.width
     rows, cols = -(-h // p.stride_y), -(-w // p.stride_x)
@@ -333,15 +333,9 @@ def _decode_downsample(left_f, samples, tree, *, min_disp, num_disp, params, tim
         low = _sample_values_f32(samples).reshape(rows, cols, samples.channels)
         right_up = _upsample_blocks(low, p.stride_x, p.stride_y, h, w)
         left_up = block_lowpass(left_f, p.stride_x, p.stride_y)
-    with timer("cost"):
-        cost = full_dsi(left_up, right_up, min_disp=min_disp, num_disp=num_disp,
-                        truncation=params.full_truncation, grad_weight=params.grad_weight,
-                        grad_truncation=params.grad_truncation)
-    with timer("tree"):
-        right_tree = _tree.build_tree(right_up, sigma=params.tree_sigma, median_size=params.tree_median)
-    disp, _ = left_right_refined_disparity(cost, left_tree=tree, right_tree=right_tree, min_disp=min_disp,
-                                           params=params, timer=timer)
-    return disp
+    # From here on the upsampled pair is matched like any full pair (the tree stays I1's own).
+    return full_pair_disparity(left_up, right_up, tree=tree, min_disp=min_disp, num_disp=num_disp,
+                               params=params, timer=timer)
 
 
 def block_lowpass(image_f32: np.ndarray, sx: int, sy: int) -> np.ndarray:
