@@ -30,6 +30,7 @@ import sys
 import click
 
 from stereobudget import __version__
+from stereobudget.atomic import redeliver_swallowed_interrupts
 from stereobudget.errors import EXIT_INTERRUPTED, MemoryLimitError, StereoBudgetError
 
 #: Exit status of a command whose standard output was closed early (128 + SIGPIPE, like
@@ -98,6 +99,7 @@ def make_main(command: click.Command, name: str):
         # SIGTERM takes the same clean path as Ctrl-C (temporary files removed, exit 130).
         try:
             signal.signal(signal.SIGTERM, _raise_keyboard_interrupt)
+            redeliver_swallowed_interrupts(signal.SIGTERM)
         except ValueError:      # not in the main thread (embedded use): keep the default
             pass
         try:

@@ -5,6 +5,11 @@ file in the target directory (same filesystem, so the final rename is atomic) an
 moved into place with :func:`os.replace` only once fully written.  Any exception,
 including ``KeyboardInterrupt`` (and SIGTERM, which the CLI turns into one), removes
 the temporary file.
+
+An interrupt that lands inside a callback that cannot propagate exceptions (numba's
+object-cache writer is a ctypes callback; ``__del__`` methods are another) would be
+swallowed and printed as "Exception ignored"; :func:`redeliver_swallowed_interrupts`
+makes such an interrupt arrive again a moment later, where it can unwind normally.
 """
 
 from __future__ import annotations
@@ -14,12 +19,37 @@ import os
 import stat
 import sys
 import tempfile
+import threading
 from pathlib import Path
 from typing import BinaryIO, Iterable, Iterator
 
 from .errors import OutputError, StereoBudgetError
 
 STDIO = "-"
+
+
+def redeliver_swallowed_interrupts(signum: int) -> None:
+    """Re-send an interrupt that Python had to swallow, instead of printing it.
+
+    Installs a :data:`sys.unraisablehook`: a ``KeyboardInterrupt`` raised where it cannot
+    propagate (a ctypes callback, a finaliser) is not printed; ``signum``'s Python handler
+    is run again in the main thread 20 ms later, by then normally outside the callback.
+    Other unraisable exceptions go to the previous hook.  For processes whose handler for
+    ``signum`` raises ``KeyboardInterrupt`` (the ``sb-*`` commands, batch workers).
+    """
+    import _thread
+
+    previous = sys.unraisablehook
+
+    def hook(unraisable):
+        if unraisable.exc_type is not None and issubclass(unraisable.exc_type, KeyboardInterrupt):
+            timer = threading.Timer(0.02, _thread.interrupt_main, (signum,))
+            timer.daemon = True
+            timer.start()
+            return
+        previous(unraisable)
+
+    sys.unraisablehook = hook
 
 
 def _is_stdio(path) -> bool:

@@ -38,7 +38,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Callable, Iterable, Iterator
 
-from .atomic import STDIO, check_output_path, display_name
+from .atomic import STDIO, check_output_path, display_name, redeliver_swallowed_interrupts
 from .errors import MemoryLimitError, OptionError, OutputError, StereoBudgetError
 
 log = logging.getLogger("stereobudget")
@@ -774,6 +774,7 @@ def _worker_init(threads: int | None) -> None:
     _worker_threads = threads
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     signal.signal(signal.SIGTERM, _worker_sigterm)
+    redeliver_swallowed_interrupts(signal.SIGTERM)
 
 
 def default_jobs() -> int:

@@ -93,3 +93,31 @@ def test_check_output_path(tmp_path):
         check_output_path(tmp_path / "o.sbs", [src], overwrite=False)
     check_output_path(tmp_path / "o.sbs", [src, "-"], overwrite=True)
     check_output_path("-", [src], overwrite=False)
+
+
+def test_swallowed_interrupt_is_redelivered_not_printed(tmp_path):
+    # A KeyboardInterrupt raised inside a finaliser (as inside numba's ctypes cache
+    # callback) cannot propagate; it must come back a moment later, without a traceback.
+    import subprocess
+    import tempfile
+    script = tmp_path / "swallow.py"
+    script.write_text(
+        "import signal, time\n"
+        "from stereobudget.atomic import redeliver_swallowed_interrupts\n"
+        "def handler(signum, frame):\n"
+        "    raise KeyboardInterrupt\n"
+        "signal.signal(signal.SIGTERM, handler)\n"
+        "redeliver_swallowed_interrupts(signal.SIGTERM)\n"
+        "class Finaliser:\n"
+        "    def __del__(self):\n"
+        "        raise KeyboardInterrupt\n"
+        "Finaliser()\n"
+        "try:\n"
+        "    time.sleep(10)\n"
+        "    print('not interrupted')\n"
+        "except KeyboardInterrupt:\n"
+        "    print('interrupted')\n")
+    proc = subprocess.run([sys.executable, str(script)], capture_output=True, text=True, timeout=60,
+                          cwd=tempfile.gettempdir())
+    assert proc.stdout.strip() == "interrupted"
+    assert "Exception ignored" not in proc.stderr and "Traceback" not in proc.stderr, proc.stderr
