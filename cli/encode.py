@@ -3,6 +3,8 @@
 The command is a thin layer over :func:`stereobudget.container.encode_file`.  It must
 start fast on the camera: nothing here (nor in what ``--raw`` reaches) imports numba or
 OpenCV; OpenCV is loaded only when an encoded image (PNG, JPEG...) has to be decoded.
+A raw frame on the default ``grid`` pattern, and ``--info``, do not import numpy either
+(:mod:`stereobudget.rawgrid`): its import was most of the process's run time.
 """
 
 from __future__ import annotations

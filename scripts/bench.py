@@ -16,7 +16,7 @@ Sections (each timed in this one run, so the ratios compare like with like):
    tiled under that budget and are marked so.
 4. Command line: the process wall time of a single-shot ``sb-decode`` on Teddy with a
    warm numba cache (what a cron job pays per call), and of ``sb-encode --raw``, which
-   must not import numba or OpenCV (checked).
+   must not import numpy, numba or OpenCV (checked).
 5. Encoder: ``encode_image`` + ``write_samples`` frames/s in-process and per process, vs
    OpenCV's JPEG 2000 and WebP encoders at a quality binary-searched to the same bytes.
 6. ``--big``: a 12 MP (4000x3000) frame with 256 disparities, Sparse (tiled
@@ -348,14 +348,17 @@ def cli_benchmark(data_dir: Path, *, repeats: int) -> dict:
             walls.append(wall)
             cpus.append(cpu)
         out["sb-encode --raw"] = {"wall": _median(walls), "cpu": _median(cpus)}
-        # What the encoder process imports (it must stay light: no numba, no OpenCV).
+        # What the encoder process imports (it must stay light: no numpy, no numba, no OpenCV).
         probe = ("import sys\nfrom stereobudget.cli.encode import main\n"
                  f"try:\n    main({enc[1:]!r})\nexcept SystemExit:\n    pass\n"
-                 "print('numba' in sys.modules, 'cv2' in sys.modules)")
-        proc = subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True)
+                 "print('numpy' in sys.modules, 'numba' in sys.modules, 'cv2' in sys.modules)")
+        # cwd outside the checkout: `python -c` puts the cwd first on sys.path, and the source
+        # tree's stereobudget/ lacks the stereobudget.cli subpackage that installation maps in.
+        proc = subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True,
+                              cwd=tempfile.gettempdir())
         flags = proc.stdout.split()
-        out["sb-encode imports numba"] = flags[-2] if len(flags) >= 2 else "?"
-        out["sb-encode imports cv2"] = flags[-1] if flags else "?"
+        flags = flags[-3:] if len(flags) >= 3 else ["?"] * 3
+        out["sb-encode imports numpy"], out["sb-encode imports numba"], out["sb-encode imports cv2"] = flags
         walls, cpus = [], []
         for _ in range(repeats):
             wall, cpu, _ = _timed_process([sys.executable, "-c", "pass"], check=True)
@@ -379,8 +382,8 @@ def cli_report(r: dict) -> list[str]:
             lines.append(f"| {k} | {v['wall']:.3f} | {_fmt_s(v.get('cpu', float('nan')))} | "
                          f"{_fmt_s(v.get('inner_total', float('nan')))} |")
     lines.append("")
-    lines.append(f"sb-encode --raw imports numba: {r.get('sb-encode imports numba')}, "
-                 f"OpenCV: {r.get('sb-encode imports cv2')}.")
+    lines.append(f"sb-encode --raw imports numpy: {r.get('sb-encode imports numpy')}, "
+                 f"numba: {r.get('sb-encode imports numba')}, OpenCV: {r.get('sb-encode imports cv2')}.")
     return lines + [""]
 
 

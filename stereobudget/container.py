@@ -4,6 +4,11 @@ The binary ``.sbs`` encoding of a :class:`SampleSet` is specified in ``docs/form
 and implemented by :func:`write_samples` / :func:`read_samples` / :func:`probe`
 (files: :func:`save_samples` / :func:`load_samples`).  :func:`encode_file` is the whole
 camera-side job for one image: read, sample, write atomically.
+
+numpy is imported inside the functions that need it, never at module level: a raw
+frame on a ``grid`` (``sb-encode --raw``) is encoded by :mod:`stereobudget.rawgrid` with
+bytes slicing, and ``probe`` (``sb-encode --info``) checks files without numpy, so the
+camera-side process starts without loading it.
 """
 
 from __future__ import annotations
@@ -14,8 +19,6 @@ import struct
 import zlib
 from dataclasses import dataclass
 from pathlib import Path
-
-import numpy as np
 
 from .atomic import STDIO, check_output_path, display_name, read_input_bytes, write_output_bytes
 from .errors import (CorruptHeaderError, CorruptPayloadError, NotASampleFileError,
@@ -53,6 +56,8 @@ class SampleSet:
     def __post_init__(self):
         if self.channel_order not in CHANNEL_ORDERS:
             raise ValueError(f"channel_order must be one of {CHANNEL_ORDERS}, got {self.channel_order!r}")
+        import numpy as np
+
         v = self.values
         if v.ndim != 2 or v.shape[1] != self.channels:
             raise ValueError(f"values must have shape (n, {self.channels}), got {v.shape}")
@@ -108,6 +113,8 @@ def encode_image(image: np.ndarray, *, pattern: SamplingPattern, channel_order: 
     channel_order : str, optional
         Channel order of ``image``; default ``"gray"`` for one channel, ``"rgb"`` for three.
     """
+    import numpy as np
+
     img = image if image.ndim == 3 else image[:, :, None]
     h, w, c = img.shape
     if channel_order is None:
@@ -151,9 +158,10 @@ _FIELD_NAMES = ("version_major", "version_minor", "header_length", "width", "hei
 assert len(MAGIC) + _FIELDS.size + 4 == HEADER_SIZE_V1_0
 
 CHANNEL_ORDER_CODES = {"gray": 0, "rgb": 1, "bgr": 2}
-#: dtype code == bytes per value: 1 = uint8, 2 = uint16 little-endian.
-DTYPE_CODES = {np.dtype(np.uint8): 1, np.dtype(np.uint16): 2}
+#: dtype code == bytes per value: 1 = uint8, 2 = uint16 little-endian.  (``DTYPE_CODES``,
+#: the same table keyed by numpy dtypes, is built on first access: see ``__getattr__``.)
 _DTYPE_NAMES = {1: "uint8", 2: "uint16"}
+_DTYPE_CODE_BY_NAME = {v: k for k, v in _DTYPE_NAMES.items()}
 PATTERN_CODES = {"grid": 0, "jitter": 1, "fps": 2, "adaptive_fps": 3, "downsample": 4}
 _PATTERN_BY_CODE = {v: k for k, v in PATTERN_CODES.items()}
 _ORDER_BY_CODE = {v: k for k, v in CHANNEL_ORDER_CODES.items()}
@@ -171,6 +179,16 @@ _MANGLED_MAGIC = (
                          "copy it in binary mode"),
 )
 _MAX_U64 = 2 ** 64 - 1
+
+
+def __getattr__(name):
+    # Public numpy-keyed table, built lazily so that importing this module needs no numpy.
+    if name == "DTYPE_CODES":
+        import numpy as np
+        table = {np.dtype(np.uint8): 1, np.dtype(np.uint16): 2}
+        globals()["DTYPE_CODES"] = table
+        return table
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
 
 
 def _crc32(data) -> int:
@@ -196,24 +214,40 @@ def write_samples(sample_set: SampleSet) -> bytes:
         The sample set does not fit the format (size beyond the limits, stride or
         offset beyond 65535, seed outside ``[0, 2**64)``).
     """
+    import numpy as np
+
     ss = sample_set
-    problem = dimension_problem(ss.width, ss.height)
+    _check_writable(ss.width, ss.height, ss.pattern)
+    payload = np.ascontiguousarray(ss.values).astype(ss.values.dtype.newbyteorder("<"),
+                                                     copy=False).tobytes()
+    return _pack_file(width=ss.width, height=ss.height, channel_order=ss.channel_order,
+                      dtype_code=_DTYPE_CODE_BY_NAME[ss.values.dtype.name], pattern=ss.pattern,
+                      sample_count=ss.values.shape[0], payload=payload)
+
+
+def _check_writable(width: int, height: int, p: SamplingPattern) -> None:
+    """ValueError when the size or the pattern's fields do not fit the 1.0 header."""
+    problem = dimension_problem(width, height)
     if problem:
         raise ValueError(problem)
-    p = ss.pattern
     for label, value in (("stride_x", p.stride_x), ("stride_y", p.stride_y),
                          ("offset_x", p.offset_x), ("offset_y", p.offset_y)):
         if not 0 <= value <= 0xFFFF:
             raise ValueError(f"{label}={value} does not fit the format (0..65535)")
     if not 0 <= p.seed <= _MAX_U64:
         raise ValueError(f"seed={p.seed} does not fit the format (0..2**64-1)")
-    payload = np.ascontiguousarray(ss.values).astype(ss.values.dtype.newbyteorder("<"),
-                                                     copy=False).tobytes()
+
+
+def _pack_file(*, width: int, height: int, channel_order: str, dtype_code: int, pattern: SamplingPattern,
+               sample_count: int, payload: bytes) -> bytes:
+    """Header + ``payload`` (already in file byte order): the whole 1.0 file, numpy-free."""
+    p = pattern
+    channels = 1 if channel_order == "gray" else 3
     fields = _FIELDS.pack(
-        VERSION_MAJOR, VERSION_MINOR, HEADER_SIZE_V1_0, ss.width, ss.height,
-        ss.channels, CHANNEL_ORDER_CODES[ss.channel_order], DTYPE_CODES[ss.values.dtype],
+        VERSION_MAJOR, VERSION_MINOR, HEADER_SIZE_V1_0, width, height,
+        channels, CHANNEL_ORDER_CODES[channel_order], dtype_code,
         PATTERN_CODES[p.kind], p.stride_x, p.stride_y, p.offset_x, p.offset_y, p.seed,
-        bytes(16), ss.values.shape[0], len(payload), _crc32(payload))
+        bytes(16), sample_count, len(payload), _crc32(payload))
     head = MAGIC + fields
     return head + struct.pack("<I", _crc32(head)) + payload
 
@@ -360,19 +394,27 @@ def read_samples(data, *, source: str = "<bytes>") -> SampleSet:
     CorruptHeaderError, CorruptPayloadError
         One class per validation step, in the order of ``docs/format.md``.
     """
+    import numpy as np
+
     view = memoryview(data).cast("B")
-    fields = _parse_header(view, source)
-    payload = view[fields["header_length"]:]
-    stored, actual = fields["payload_crc32"], _crc32(payload)
-    if stored != actual:
-        raise CorruptPayloadError(f"payload checksum mismatch (stored {stored:08x}, computed "
-                                  f"{actual:08x}): sample values are damaged", path=source)
+    fields, payload = _validate_file(view, source)
     dtype = np.dtype("<u1" if fields["dtype_code"] == 1 else "<u2")
     values = np.frombuffer(payload, dtype=dtype).astype(dtype.newbyteorder("="))  # a writable copy
     values = values.reshape(fields["sample_count"], fields["channels"])
     return SampleSet(height=fields["height"], width=fields["width"],
                      channel_order=_ORDER_BY_CODE[fields["channel_order_code"]],
                      pattern=_pattern_from_fields(fields), values=values)
+
+
+def _validate_file(view: memoryview, source: str):
+    """Every check of :func:`read_samples` (header, size, payload CRC); (fields, payload view)."""
+    fields = _parse_header(view, source)
+    payload = view[fields["header_length"]:]
+    stored, actual = fields["payload_crc32"], _crc32(payload)
+    if stored != actual:
+        raise CorruptPayloadError(f"payload checksum mismatch (stored {stored:08x}, computed "
+                                  f"{actual:08x}): sample values are damaged", path=source)
+    return fields, payload
 
 
 def save_samples(sample_set: SampleSet, path, *, overwrite: bool = False) -> int:
@@ -467,14 +509,13 @@ def probe(source, *, verify_payload: bool = False, name: str | None = None) -> d
         name = name or "<bytes>"
         view = memoryview(source).cast("B")
         if verify_payload:
-            read_samples(view, source=name)
+            return header_dict(_validate_file(view, name)[0])
         return header_dict(_parse_header(view, name))
     name = name or str(source)
     path = Path(source)
     if verify_payload:
         data = read_input_bytes(path, error=NotASampleFileError)
-        read_samples(data, source=name)
-        return header_dict(_parse_header(memoryview(data), name))
+        return header_dict(_validate_file(memoryview(data).cast("B"), name)[0])
     try:
         with open(path, "rb") as handle:
             size = os.fstat(handle.fileno()).st_size
@@ -550,8 +591,7 @@ def encode_file(source, output, *, pattern: SamplingPattern, raw_size: tuple[int
         Bad output path (checked before the input is read), unreadable input, or a
         pattern that leaves no sample on this image.
     """
-    from . import imageio   # numpy-only at import; OpenCV loads only for encoded images
-    from .errors import OptionError
+    from .errors import ImageReadError, OptionError
 
     check_output_path(output, [source], overwrite)
     name = display_name(source)
@@ -559,10 +599,16 @@ def encode_file(source, output, *, pattern: SamplingPattern, raw_size: tuple[int
     if raw_size is not None:
         if pix_fmt is None:
             raise OptionError("a raw frame needs a pixel format (--pix-fmt)")
-        data = read_input_bytes(source, error=imageio.ImageReadError)
+        data = read_input_bytes(source, error=ImageReadError)
+        if pattern.is_regular_grid:
+            # The camera's common case, without numpy: bytes slicing (see rawgrid).
+            return _encode_raw_grid(data, output, name=name, raw_size=raw_size, pix_fmt=pix_fmt,
+                                    pattern=pattern, overwrite=overwrite)
+        from . import imageio   # numpy; OpenCV loads only for encoded images
         image, channel_order = imageio.read_raw(data, width=raw_size[0], height=raw_size[1],
                                                 pix_fmt=pix_fmt, name=name)
     else:
+        from . import imageio
         image, channel_order = imageio.read_image(source, name=name)
     height, width = image.shape[:2]
     if sample_count(pattern, height, width) == 0:
@@ -579,3 +625,32 @@ def encode_file(source, output, *, pattern: SamplingPattern, raw_size: tuple[int
         stride_y=pattern.stride_y, offset_x=pattern.offset_x, offset_y=pattern.offset_y,
         seed=pattern.seed, sample_count=sample_set.values.shape[0], epsilon=sample_set.epsilon,
         header_bytes=HEADER_SIZE_V1_0, payload_bytes=payload, file_size=len(data))
+
+
+def _encode_raw_grid(data, output, *, name: str, raw_size: tuple[int, int], pix_fmt: str,
+                     pattern: SamplingPattern, overwrite: bool) -> EncodeReport:
+    """:func:`encode_file` for a raw frame on a ``grid``: same checks, errors and bytes, no numpy."""
+    from .errors import OptionError
+    from .rawgrid import check_raw_frame, grid_payload
+
+    width, height = raw_size
+    channels, value_bytes, channel_order = check_raw_frame(data, width=width, height=height,
+                                                           pix_fmt=pix_fmt, name=name)
+    n = sample_count(pattern, height, width)
+    if n == 0:
+        raise OptionError(f"offset ({pattern.offset_x},{pattern.offset_y}) leaves no sample in a "
+                          f"{width}x{height} image", path=name)
+    _check_writable(width, height, pattern)
+    payload = grid_payload(data, width=width, height=height, pixel_bytes=channels * value_bytes,
+                           stride_x=pattern.stride_x, stride_y=pattern.stride_y,
+                           offset_x=pattern.offset_x, offset_y=pattern.offset_y)
+    data = _pack_file(width=width, height=height, channel_order=channel_order, dtype_code=value_bytes,
+                      pattern=pattern, sample_count=n, payload=payload)
+    write_output_bytes(output, data, overwrite=overwrite)
+    return EncodeReport(
+        source=name, output="<stdout>" if str(output) == STDIO else str(output),
+        width=width, height=height, channels=channels, channel_order=channel_order,
+        dtype=_DTYPE_NAMES[value_bytes], pattern=pattern.kind, stride_x=pattern.stride_x,
+        stride_y=pattern.stride_y, offset_x=pattern.offset_x, offset_y=pattern.offset_y,
+        seed=pattern.seed, sample_count=n, epsilon=n / float(height * width),
+        header_bytes=HEADER_SIZE_V1_0, payload_bytes=len(payload), file_size=len(data))

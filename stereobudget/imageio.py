@@ -6,8 +6,10 @@ imageio/tifffile) decodes into that convention, and rejects what the library can
 with a one-line :class:`~stereobudget.errors.ImageReadError` naming the file.
 
 :func:`read_raw` decodes headerless camera frames (``--raw``).  It needs numpy only:
-OpenCV is imported lazily inside the functions that use it, so the camera-side
-``sb-encode --raw`` starts without loading OpenCV or numba.
+OpenCV is imported lazily inside the functions that use it.  numpy too is imported
+inside the functions, so importing this module is cheap; the camera-side
+``sb-encode --raw`` on a grid does not even call :func:`read_raw` (see
+:mod:`stereobudget.rawgrid`) and starts without numpy, OpenCV or numba.
 """
 
 from __future__ import annotations
@@ -23,21 +25,33 @@ import threading
 import warnings
 from pathlib import Path
 
-import numpy as np
-
 from .atomic import STDIO, display_name, read_input_bytes, write_output_bytes
 from .errors import ImageReadError, OutputError
 from .limits import dimension_problem
 
 log = logging.getLogger("stereobudget")
 
-#: Headerless pixel formats of :func:`read_raw`: name -> (channels, numpy dtype, channel order).
-RAW_PIXEL_FORMATS = {
-    "gray8": (1, np.dtype(np.uint8), "gray"),
-    "rgb24": (3, np.dtype(np.uint8), "rgb"),
-    "bgr24": (3, np.dtype(np.uint8), "bgr"),
-    "gray16le": (1, np.dtype("<u2"), "gray"),
-}
+# RAW_PIXEL_FORMATS -- headerless pixel formats of :func:`read_raw`: name -> (channels,
+# numpy dtype, channel order) -- is built on first access (module ``__getattr__`` below)
+# from :data:`stereobudget.rawgrid.RAW_FORMATS`: importing this module needs no numpy.
+
+
+def _raw_pixel_formats() -> dict:
+    table = globals().get("RAW_PIXEL_FORMATS")
+    if table is None:
+        import numpy as np
+
+        from .rawgrid import RAW_FORMATS
+        table = {fmt: (channels, np.dtype(np.uint8) if size == 1 else np.dtype("<u2"), order)
+                 for fmt, (channels, size, order) in RAW_FORMATS.items()}
+        globals()["RAW_PIXEL_FORMATS"] = table
+    return table
+
+
+def __getattr__(name):
+    if name == "RAW_PIXEL_FORMATS":
+        return _raw_pixel_formats()
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
 
 _SBS_MAGIC_PREFIX = b"\x89SBS"
 
@@ -175,6 +189,7 @@ def _native_stderr_captured():
 
 def _decode_with_opencv(data: bytes):
     import cv2
+    import numpy as np
     buf = np.frombuffer(data, dtype=np.uint8)
     try:
         image = cv2.imdecode(buf, cv2.IMREAD_UNCHANGED)
@@ -201,6 +216,7 @@ def _decode_fallback(data: bytes):
             image = iio.imread(io.BytesIO(data), index=0)
     except Exception:
         return None
+    import numpy as np
     image = np.asarray(image)
     return image if image.size else None
 
@@ -214,6 +230,8 @@ def _describe_dtype(dtype: np.dtype) -> str:
 
 def _normalise(image: np.ndarray, *, name: str, bgr: bool):
     """Check dtype/shape, drop alpha, squeeze, convert BGR to RGB. Returns (array, order)."""
+    import numpy as np
+
     if image.dtype.kind == "f":
         has_nan = bool(np.isnan(image).any())
         raise ImageReadError(
@@ -344,18 +362,12 @@ def read_raw(data: bytes, *, width: int, height: int, pix_fmt: str, name: str = 
     ImageReadError
         Unknown ``pix_fmt``, bad size, or a byte count other than one frame.
     """
-    if pix_fmt not in RAW_PIXEL_FORMATS:
-        raise ImageReadError(f"unknown raw pixel format {pix_fmt!r}; expected one of "
-                             f"{', '.join(RAW_PIXEL_FORMATS)}", path=name)
-    problem = dimension_problem(width, height)
-    if problem:
-        raise ImageReadError(f"raw frame: {problem}", path=name)
-    channels, dtype, order = RAW_PIXEL_FORMATS[pix_fmt]
-    expected = width * height * channels * dtype.itemsize
-    if len(data) != expected:
-        what = "less than one frame" if len(data) < expected else "more than one frame"
-        raise ImageReadError(f"raw {pix_fmt} {width}x{height} frame must be exactly {expected} bytes, "
-                             f"got {len(data)} ({what})", path=name)
+    import numpy as np
+
+    from .rawgrid import check_raw_frame
+
+    check_raw_frame(data, width=width, height=height, pix_fmt=pix_fmt, name=name)
+    channels, dtype, order = _raw_pixel_formats()[pix_fmt]
     # A view on little-endian hosts; only a big-endian host converts gray16le.
     pixels = np.frombuffer(data, dtype=dtype).astype(dtype.newbyteorder("="), copy=False)
     shape = (height, width) if channels == 1 else (height, width, channels)
@@ -379,6 +391,7 @@ def encode_image_bytes(image: np.ndarray, *, fmt: str = ".png", channel_order: s
         ``"gray"``, ``"rgb"`` or ``"bgr"``: the order of ``image``'s channels.
     """
     import cv2
+    import numpy as np
     if image.dtype not in (np.uint8, np.uint16):
         raise ValueError(f"only uint8 and uint16 images can be written, got {image.dtype}")
     if image.ndim == 3 and image.shape[2] == 1:

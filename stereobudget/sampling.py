@@ -26,14 +26,15 @@ Patterns
 
 The exact definitions, precise enough for a C implementation, are in ``docs/format.md``.
 The FPS kernels (numba) live in :mod:`stereobudget.fps` and are imported only when an
-FPS pattern is used, so grid/jitter encoders stay free of numba.
+FPS pattern is used, so grid/jitter encoders stay free of numba.  numpy itself is
+imported inside the functions that compute positions or values: :class:`SamplingPattern`,
+:func:`grid_shape` and :func:`sample_count` (all that ``sb-encode --raw`` on a grid and
+``sb-encode --info`` need) work without it.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-
-import numpy as np
 
 PATTERN_KINDS = ("grid", "jitter", "fps", "adaptive_fps", "downsample")
 
@@ -96,11 +97,14 @@ def sample_count(pattern: SamplingPattern, height: int, width: int) -> int:
     return (-(-height // pattern.stride_y)) * (-(-width // pattern.stride_x))
 
 
-_GOLDEN = np.uint64(0x9E3779B97F4A7C15)
+#: SplitMix64 increment (the golden ratio in 64 bits); a plain int, see ``_jitter_positions``.
+_GOLDEN = 0x9E3779B97F4A7C15
 
 
 def splitmix64(x: np.ndarray) -> np.ndarray:
     """SplitMix64 finaliser on uint64 arrays (wrapping arithmetic), as specified in docs/format.md."""
+    import numpy as np
+
     with np.errstate(over="ignore"):
         z = x.astype(np.uint64)
         z = (z ^ (z >> np.uint64(30))) * np.uint64(0xBF58476D1CE4E5B9)
@@ -109,13 +113,15 @@ def splitmix64(x: np.ndarray) -> np.ndarray:
 
 
 def _jitter_positions(pattern: SamplingPattern, height: int, width: int):
+    import numpy as np
+
     sy, sx = pattern.stride_y, pattern.stride_x
     cy = np.arange(0, height, sy, dtype=np.int64)
     cx = np.arange(0, width, sx, dtype=np.int64)
     cell_y, cell_x = np.meshgrid(cy, cx, indexing="ij")
     k = np.arange(cell_y.size, dtype=np.uint64).reshape(cell_y.shape)
     with np.errstate(over="ignore"):
-        z = splitmix64(np.uint64(pattern.seed) + (k + np.uint64(1)) * _GOLDEN)
+        z = splitmix64(np.uint64(pattern.seed) + (k + np.uint64(1)) * np.uint64(_GOLDEN))
     cell_h = np.minimum(sy, height - cell_y).astype(np.uint64)
     cell_w = np.minimum(sx, width - cell_x).astype(np.uint64)
     dy = ((z >> np.uint64(32)) % cell_h).astype(np.int64)
@@ -139,6 +145,8 @@ def adaptive_split(count: int) -> tuple[int, int]:
 
 def _values_8bit(values: np.ndarray) -> np.ndarray:
     """(n, C) int64 sample values in 8-bit units: uint16 keeps its high byte (v >> 8)."""
+    import numpy as np
+
     v = np.asarray(values)
     if v.ndim == 1:
         v = v[:, None]
@@ -170,6 +178,8 @@ def adaptive_tile_weights(rows: np.ndarray, cols: np.ndarray, values: np.ndarray
     -------
     ndarray, int64 (ceil(H / tile_h), ceil(W / tile_w))
     """
+    import numpy as np
+
     v = _values_8bit(values)
     tiles_y, tiles_x = -(-height // tile_h), -(-width // tile_w)
     channels = v.shape[1]
@@ -218,6 +228,8 @@ def adaptive_fps_positions(height: int, width: int, count: int, *, seed: int, ti
     -------
     rows, cols : ndarray of int64
     """
+    import numpy as np
+
     from .fps import FarthestPointSampler
     uniform, adaptive = adaptive_split(count)
     sampler = FarthestPointSampler(height, width, seed)
@@ -261,6 +273,8 @@ def downsample_blocks(image: np.ndarray, pattern: SamplingPattern) -> np.ndarray
         Row-major block order; each value ``(sum + count // 2) // count`` (integer mean
         rounded half up).
     """
+    import numpy as np
+
     img = image if image.ndim == 3 else image[:, :, None]
     if img.dtype not in (np.uint8, np.uint16):
         raise ValueError(f"image must be uint8 or uint16, got {img.dtype}")
@@ -275,6 +289,8 @@ def downsample_blocks(image: np.ndarray, pattern: SamplingPattern) -> np.ndarray
 
 
 def _block_centres(pattern: SamplingPattern, height: int, width: int):
+    import numpy as np
+
     sy, sx = pattern.stride_y, pattern.stride_x
     cy = np.arange(0, height, sy, dtype=np.int64)
     cx = np.arange(0, width, sx, dtype=np.int64)
@@ -305,6 +321,8 @@ def sample_positions(pattern: SamplingPattern, height: int, width: int, *, image
         Pixel coordinates, each of length :func:`sample_count`.  For ``downsample`` the
         centre pixel of each block, ``(cy + (cell_h - 1) // 2, cx + (cell_w - 1) // 2)``.
     """
+    import numpy as np
+
     if pattern.kind == "grid":
         r = np.arange(pattern.offset_y, height, pattern.stride_y, dtype=np.int64)
         c = np.arange(pattern.offset_x, width, pattern.stride_x, dtype=np.int64)

@@ -334,3 +334,106 @@ def test_probe_checks_file_size_always_and_payload_crc_on_request(tmp_path):
 def test_load_missing_file(tmp_path):
     with pytest.raises(NotASampleFileError, match="no such file"):
         load_samples(tmp_path / "nope.sbs")
+
+
+# --- raw frames on a grid: the numpy-free path (stereobudget.rawgrid) ---------------------
+
+_RAW_FORMATS = {"gray8": (1, np.uint8), "rgb24": (3, np.uint8), "bgr24": (3, np.uint8),
+                "gray16le": (1, np.uint16)}
+
+
+@st.composite
+def raw_grid_cases(draw):
+    pix_fmt = draw(st.sampled_from(sorted(_RAW_FORMATS)))
+    h = draw(st.integers(1, 40))
+    w = draw(st.integers(1, 40))
+    sx = draw(st.integers(1, 12))
+    sy = draw(st.integers(1, 12))
+    ox = draw(st.integers(0, min(sx - 1, w - 1)))
+    oy = draw(st.integers(0, min(sy - 1, h - 1)))
+    channels, dtype = _RAW_FORMATS[pix_fmt]
+    img = make_image(h, w, channels, dtype, seed=draw(st.integers(0, 1000)))
+    return pix_fmt, img.astype(img.dtype.newbyteorder("<")).tobytes(), (w, h), \
+        SamplingPattern("grid", sx, sy, offset_x=ox, offset_y=oy)
+
+
+def _numpy_raw_encoding(frame: bytes, size, pix_fmt: str, pattern) -> bytes:
+    from stereobudget import imageio
+    image, order = imageio.read_raw(frame, width=size[0], height=size[1], pix_fmt=pix_fmt)
+    return write_samples(encode_image(image, pattern=pattern, channel_order=order))
+
+
+@settings(max_examples=200, deadline=None)
+@given(raw_grid_cases())
+def test_raw_grid_path_writes_the_bytes_of_the_numpy_path(case):
+    import tempfile
+
+    pix_fmt, frame, size, pattern = case
+    expected = _numpy_raw_encoding(frame, size, pix_fmt, pattern)
+    with tempfile.TemporaryDirectory() as tmp:
+        src, out = f"{tmp}/frame.raw", f"{tmp}/f.sbs"
+        with open(src, "wb") as handle:
+            handle.write(frame)
+        report = container.encode_file(src, out, pattern=pattern, raw_size=size, pix_fmt=pix_fmt)
+        with open(out, "rb") as handle:
+            written = handle.read()
+    assert written == expected
+    ss = read_samples(expected)
+    assert report.as_dict() == {
+        "source": src, "output": out, "width": size[0], "height": size[1],
+        "channels": ss.channels, "channel_order": ss.channel_order, "dtype": str(ss.dtype),
+        "pattern": "grid", "stride_x": pattern.stride_x, "stride_y": pattern.stride_y,
+        "offset_x": pattern.offset_x, "offset_y": pattern.offset_y, "seed": 0,
+        "sample_count": ss.values.shape[0], "epsilon": ss.epsilon, "header_bytes": HEADER_SIZE_V1_0,
+        "payload_bytes": len(expected) - HEADER_SIZE_V1_0, "file_size": len(expected)}
+
+
+@pytest.mark.parametrize("pix_fmt", sorted(_RAW_FORMATS))
+@pytest.mark.parametrize("h,w,sx,sy,ox,oy", [(375, 450, 5, 5, 0, 0), (375, 450, 4, 3, 3, 2),
+                                             (480, 640, 1, 1, 0, 0), (17, 33, 1, 7, 0, 6),
+                                             (9, 11, 20, 20, 10, 8), (1, 1, 1, 1, 0, 0),
+                                             (64, 300, 299, 2, 298, 1)])
+def test_raw_grid_payload_matches_numpy_slicing(pix_fmt, h, w, sx, sy, ox, oy):
+    from stereobudget.rawgrid import grid_payload
+
+    channels, dtype = _RAW_FORMATS[pix_fmt]
+    img = make_image(h, w, channels, dtype, seed=h * w)
+    frame = img.astype(img.dtype.newbyteorder("<")).tobytes()
+    pattern = SamplingPattern("grid", sx, sy, offset_x=ox, offset_y=oy)
+    expected = _numpy_raw_encoding(frame, (w, h), pix_fmt, pattern)
+    pixel_bytes = channels * np.dtype(dtype).itemsize
+    for data in (frame, bytearray(frame), memoryview(frame)):
+        payload = grid_payload(data, width=w, height=h, pixel_bytes=pixel_bytes, stride_x=sx,
+                               stride_y=sy, offset_x=ox, offset_y=oy)
+        assert payload == expected[HEADER_SIZE_V1_0:]
+
+
+def test_raw_grid_path_errors_match_the_numpy_path(tmp_path):
+    from stereobudget import imageio
+    from stereobudget.errors import ImageReadError, OptionError
+
+    src = tmp_path / "f.raw"
+    grid = SamplingPattern("grid", 5, 5)
+    for data, size, pix_fmt in ((bytes(14 * 10 * 3 + 5), (14, 10), "rgb24"),
+                                (bytes(13), (14, 10), "gray16le"),
+                                (bytes(10), (10, 1), "yuv420"),
+                                (bytes(0), (0, 10), "gray8")):
+        src.write_bytes(data)
+        with pytest.raises(ImageReadError) as numpy_path:
+            imageio.read_raw(data, width=size[0], height=size[1], pix_fmt=pix_fmt, name=str(src))
+        with pytest.raises(ImageReadError) as fast_path:
+            container.encode_file(src, tmp_path / "o.sbs", pattern=grid, raw_size=size, pix_fmt=pix_fmt)
+        assert str(fast_path.value) == str(numpy_path.value)
+    src.write_bytes(bytes(4 * 3))
+    with pytest.raises(OptionError, match="leaves no sample"):
+        container.encode_file(src, tmp_path / "o.sbs", pattern=SamplingPattern("grid", 9, 9, offset_x=5),
+                              raw_size=(4, 3), pix_fmt="gray8")
+    assert not (tmp_path / "o.sbs").exists()
+
+
+def test_library_tables_keep_their_numpy_form():
+    from stereobudget import imageio
+
+    assert container.DTYPE_CODES == {np.dtype(np.uint8): 1, np.dtype(np.uint16): 2}
+    assert imageio.RAW_PIXEL_FORMATS["gray16le"] == (1, np.dtype("<u2"), "gray")
+    assert imageio.RAW_PIXEL_FORMATS["bgr24"] == (3, np.dtype(np.uint8), "bgr")

@@ -191,6 +191,43 @@ def test_png_encoding_never_imports_numba(png, tmp_path):
     assert _loaded_heavy_modules([png[0], "-o", tmp_path / "p.sbs"]) == ["cv2"]
 
 
+def _run_main_without_numpy(args, *, stdin: bytes | None = None) -> subprocess.CompletedProcess:
+    """Run sb-encode's main in a fresh interpreter; it fails if numpy, numba or cv2 got imported."""
+    code = ("import sys\n"
+            "from stereobudget.cli.encode import main\n"
+            "try:\n    main(sys.argv[1:])\nexcept SystemExit as e:\n    assert not e.code, e.code\n"
+            "assert 'numpy' not in sys.modules, 'numpy imported'\n"
+            "assert 'numba' not in sys.modules, 'numba imported'\n"
+            "assert 'cv2' not in sys.modules, 'cv2 imported'\n")
+    # cwd outside the checkout: see _loaded_heavy_modules.
+    proc = subprocess.run([sys.executable, "-c", code, *map(str, args)], input=stdin,
+                          capture_output=True, timeout=60, cwd=tempfile.gettempdir())
+    assert proc.returncode == 0, proc.stderr.decode()
+    return proc
+
+
+@pytest.mark.parametrize("pix_fmt,channels,dtype", [
+    ("rgb24", 3, np.uint8), ("bgr24", 3, np.uint8), ("gray8", 1, np.uint8), ("gray16le", 1, np.uint16)])
+def test_raw_grid_encoding_and_info_import_no_numpy(tmp_path, pix_fmt, channels, dtype):
+    frame = rgb_image(h=37, w=45, dtype=dtype, seed=3)[:, :, :channels]
+    raw = frame.astype(frame.dtype.newbyteorder("<")).tobytes()
+    path = tmp_path / "f.raw"
+    path.write_bytes(raw)
+    out = tmp_path / "f.sbs"
+    _run_main_without_numpy([path, "--raw", "45x37", "--pix-fmt", pix_fmt, "--stride-x", 4,
+                             "--stride-y", 3, "--offset", "1,2", "-o", out, "--json"])
+    ss = load_samples(out)
+    np.testing.assert_array_equal(ss.grid_values(), frame.reshape(37, 45, channels)[2::3, 1::4])
+    # Standard input to standard output: the same bytes.
+    piped = _run_main_without_numpy(["-", "--raw", "45x37", "--pix-fmt", pix_fmt, "--stride-x", 4,
+                                     "--stride-y", 3, "--offset", "1,2", "-o", "-"], stdin=raw)
+    assert piped.stdout == out.read_bytes()
+    # --info, with and without the payload check.
+    for extra in ([], ["--header-only"]):
+        info = _run_main_without_numpy(["--info", out, *extra])
+        assert json.loads(info.stdout)["sample_count"] == ss.values.shape[0]
+
+
 # --- --info ----------------------------------------------------------------------------
 
 def _corrupt_variants(good: bytes) -> dict:
