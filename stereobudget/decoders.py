@@ -84,6 +84,13 @@ class DecoderParams:
     hybrid_sparse_weight : float or None
         Hybrid: weight of the Sparse DSI in the mean (the interpolated DSI gets 1 - w).
         ``None``: chosen from the stride by :func:`hybrid_weight`.
+    grid_cells_per_sigma_s, grid_cells_per_sigma_r : float
+        Resolution of the bilateral grid of the Sparse fill: grid cells per spatial and
+        per range sigma (:func:`stereobudget.bilateral.grid_geometry`).  One cell per
+        sigma is Paris & Durand's sampling rate; the grid blur is narrowed so the
+        effective kernel keeps its sigma, and the sweep in docs/performance.md
+        (``scripts/sweep_grid.py``) finds every scene within 0.2 pp of 2 cells per
+        sigma at strides 3, 5 and 8, for 1/8 of the grid cells.
     """
 
     sigma_r: float = 15.0
@@ -100,6 +107,8 @@ class DecoderParams:
     step_truncation: float = 5.0
     noise_reference: float | None = 2.5
     hybrid_sparse_weight: float | None = None
+    grid_cells_per_sigma_s: float = 1.0
+    grid_cells_per_sigma_r: float = 1.0
 
 
 @dataclass
@@ -270,24 +279,38 @@ def _sparse_filled_cost(left_f, guide, samples, *, min_disp, num_disp, params):
                              num_disp=num_disp, sigma_s=params.sigma_s_per_stride * _stride(samples),
                              sigma_r=params.sigma_r, truncation=params.truncation,
                              right_steps=steps, step_spacing=samples.pattern.stride_x,
-                             step_weight=params.step_weight, step_truncation=params.step_truncation)
+                             step_weight=params.step_weight, step_truncation=params.step_truncation,
+                             cells_per_sigma_s=params.grid_cells_per_sigma_s,
+                             cells_per_sigma_r=params.grid_cells_per_sigma_r)
 
 
 def lowpass_interpolation(samples: SampleSet, *, sigma: float) -> np.ndarray:
     """Dense low-passed estimate of I2 from its samples: a normalised Gaussian convolution.
 
-    Interpolation and low-pass are one operation, which works for any sampling pattern.
+    The samples (as impulses) and their mask are blurred with the same Gaussian and
+    divided, so interpolation and low-pass are one operation, for any sampling pattern.
+    Pixels with no sample within the kernel's reach (4 sigma) get 0.
 
     Returns
     -------
     ndarray, float32 (H, W, C), 8-bit units
     """
-    from .bilateral import sparse_joint_bilateral
+    import cv2
     rows, cols = samples.positions()
-    flat = np.zeros((samples.height, samples.width), np.float32)
-    # A huge range sigma turns the joint bilateral filter into a spatial one.
-    return sparse_joint_bilateral(flat, rows, cols, _sample_values_f32(samples), sigma_s=sigma,
-                                  sigma_r=1e6, missing_value=0.0)
+    values = _sample_values_f32(samples).reshape(len(rows), -1)
+    channels = values.shape[1]
+    # Channels and mask blurred together: one pass over one interleaved image.
+    impulses = np.zeros((samples.height, samples.width, channels + 1), np.float32)
+    impulses[rows, cols, :channels] = values
+    impulses[rows, cols, channels] = 1.0
+    # Zero outside the frame for the values and the mask alike: the border stays unbiased.
+    blurred = cv2.GaussianBlur(impulses, (0, 0), sigmaX=sigma, sigmaY=sigma, borderType=cv2.BORDER_CONSTANT)
+    blurred = blurred.reshape(impulses.shape)
+    weight = blurred[..., channels:]
+    # The kernel sums to 1, so the mask's blur is ~ the sample density where samples are.
+    reached = weight > np.float32(1e-4 * len(rows) / float(samples.height * samples.width))
+    return np.divide(blurred[..., :channels], weight, out=np.zeros_like(blurred[..., :channels]),
+                     where=reached)
 
 
 def gaussian_lowpass(image_f32: np.ndarray, *, sigma: float) -> np.ndarray:
@@ -568,7 +591,9 @@ def auto_tile_rows(samples: SampleSet, *, num_disp: int, method: str, params: De
 
     def estimate(rows: int) -> int:
         return estimate_decode_memory(rows, w, num_disp, method, stride_x=p.stride_x, stride_y=p.stride_y,
-                                      sigma_s_per_stride=params.sigma_s_per_stride, sigma_r=params.sigma_r)
+                                      sigma_s_per_stride=params.sigma_s_per_stride, sigma_r=params.sigma_r,
+                                      cells_per_sigma_s=params.grid_cells_per_sigma_s,
+                                      cells_per_sigma_r=params.grid_cells_per_sigma_r)
 
     try:
         limit = default_memory_limit() if max_memory is None else int(max_memory)

@@ -74,12 +74,13 @@ _SIZE_UNITS = {"": 1, "B": 1, "K": 2 ** 10, "M": 2 ** 20, "G": 2 ** 30, "T": 2 *
 
 
 def _bilateral_grid_bytes(height: int, width: int, num_disp: int, *, stride: float,
-                          sigma_s_per_stride: float, sigma_r: float) -> int:
+                          sigma_s_per_stride: float, sigma_r: float, cells_per_sigma_s: float,
+                          cells_per_sigma_r: float) -> int:
     """Bytes of one float32 (GY, GX, GZ, D) grid of the Sparse fill (see bilateral.grid_geometry)."""
-    # Mirrors bilateral.grid_geometry with 2 cells per sigma and the largest possible
-    # guide value (255: every guide is in 8-bit units), so it never underestimates.
-    cell_s = max(sigma_s_per_stride * stride / 2.0, 1.0)
-    cell_r = max(sigma_r / 2.0, 1e-3)
+    # Mirrors bilateral.grid_geometry with the largest possible guide value (255: every
+    # guide is in 8-bit units), so it never underestimates.
+    cell_s = max(sigma_s_per_stride * stride / cells_per_sigma_s, 1.0)
+    cell_r = max(sigma_r / cells_per_sigma_r, 1e-3)
     gy = int(_math.floor((height - 1) / cell_s)) + 2
     gx = int(_math.floor((width - 1) / cell_s)) + 2
     gz = int(_math.floor(255.0 / cell_r)) + 2
@@ -88,7 +89,8 @@ def _bilateral_grid_bytes(height: int, width: int, num_disp: int, *, stride: flo
 
 def estimate_decode_memory(height: int, width: int, num_disp: int, method: str, *,
                            stride_x: int = 5, stride_y: int = 5, sigma_s_per_stride: float = 2.0,
-                           sigma_r: float = 15.0) -> int:
+                           sigma_r: float = 15.0, cells_per_sigma_s: float = 1.0,
+                           cells_per_sigma_r: float = 1.0) -> int:
     """Conservative estimate of the peak memory of :func:`stereobudget.decoders.decode`, in bytes.
 
     The decoders are dominated by float32 ``(H, W, D)`` cost volumes (``V`` bytes each)
@@ -110,7 +112,7 @@ def estimate_decode_memory(height: int, width: int, num_disp: int, method: str, 
     A margin of 10 % on the volume terms, 192 bytes per pixel for images, trees and
     disparity maps, and 16 MiB of fixed allowance are added.  Measured peaks
     (``scripts/measure_decode_memory.py``: peak RSS above the resting RSS after JIT
-    warm-up) are 58-85 % of the estimate at 450x375 and 1152x900; the grid terms are
+    warm-up) are 56-85 % of the estimate at 450x375 and 1152x900; the grid terms are
     those of the general fill (jitter, fps), looser for regular grids (docs/errors.md).
 
     Parameters
@@ -125,6 +127,8 @@ def estimate_decode_memory(height: int, width: int, num_disp: int, method: str, 
         Sampling strides (the Sparse fill's grid cell is proportional to the stride).
     sigma_s_per_stride, sigma_r : float
         Fill sigmas (:class:`stereobudget.decoders.DecoderParams`).
+    cells_per_sigma_s, cells_per_sigma_r : float
+        Resolution of the fill's bilateral grid (``DecoderParams.grid_cells_per_sigma_*``).
 
     Returns
     -------
@@ -138,7 +142,8 @@ def estimate_decode_memory(height: int, width: int, num_disp: int, method: str, 
     if method in ("sparse", "hybrid"):
         stride = _math.sqrt(max(int(stride_x), 1) * max(int(stride_y), 1))
         grid = _bilateral_grid_bytes(height, width, num_disp, stride=stride,
-                                     sigma_s_per_stride=sigma_s_per_stride, sigma_r=sigma_r)
+                                     sigma_s_per_stride=sigma_s_per_stride, sigma_r=sigma_r,
+                                     cells_per_sigma_s=cells_per_sigma_s, cells_per_sigma_r=cells_per_sigma_r)
         fill = max(3 * grid, 2 * grid + volume)
         peak = fill if method == "sparse" else max(fill, 3 * volume)
     elif method in ("full", "downsample"):
