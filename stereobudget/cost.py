@@ -87,28 +87,46 @@ def _full_dsi(left, right, left_grad, right_grad, min_disp, num_disp, truncation
     inv_channels = np.float32(1.0 / channels)
     colour_weight = np.float32(1.0) - grad_weight
     use_grad = grad_weight > 0
+    # Right-image columns any layer can reach: x - min_disp - i for x in [0, w), i in [0, D).
+    first_column = -(min_disp + num_disp - 1)
+    span = (w - 1 - min_disp) - first_column + 1
     for y in prange(h):
+        # One row of I2 (and its gradient) per channel, reversed and clamped to the border
+        # column (standard practice outside the image), so that the layers of a pixel read
+        # it forwards without branches: the loops over layers vectorise.
+        rev = np.empty((channels + 1, span), dtype=np.float32)
+        for k in range(span):
+            xr = first_column + span - 1 - k
+            if xr < 0:
+                xr = 0
+            elif xr >= w:
+                xr = w - 1
+            for ch in range(channels):
+                rev[ch, k] = right[y, xr, ch]
+            rev[channels, k] = right_grad[y, xr] if use_grad else np.float32(0.0)
         for x in range(w):
-            lp = left[y, x]
-            lg = left_grad[y, x] if use_grad else np.float32(0.0)
+            # Layer i reads I2 column x - min_disp - i, i.e. rev index start + i.
+            start = span - 1 - (x - min_disp - first_column)
             o = out[y, x]
+            # float32 throughout: the same sum as pixel_cost, channels added in order.
+            lp = left[y, x, 0]
+            row = rev[0]
             for i in range(num_disp):
-                xr = x - (min_disp + i)
-                # Outside the right image: compare with its border column (standard practice).
-                if xr < 0:
-                    xr = 0
-                elif xr >= w:
-                    xr = w - 1
-                rp = right[y, xr]
-                # float32 throughout: the same sum as pixel_cost, without float64 temporaries.
-                acc = np.float32(0.0)
-                for ch in range(channels):
-                    acc += abs(lp[ch] - rp[ch])
-                c = min(acc * inv_channels, truncation)
-                if use_grad:
-                    g = min(abs(lg - right_grad[y, xr]), grad_truncation)
-                    c = colour_weight * c + grad_weight * g
-                o[i] = c
+                o[i] = abs(lp - row[start + i])
+            for ch in range(1, channels):
+                lp = left[y, x, ch]
+                row = rev[ch]
+                for i in range(num_disp):
+                    o[i] += abs(lp - row[start + i])
+            if use_grad:
+                lg = left_grad[y, x]
+                grad = rev[channels]
+                for i in range(num_disp):
+                    g = min(abs(lg - grad[start + i]), grad_truncation)
+                    o[i] = colour_weight * min(o[i] * inv_channels, truncation) + grad_weight * g
+            else:
+                for i in range(num_disp):
+                    o[i] = min(o[i] * inv_channels, truncation)
     return out
 
 
