@@ -28,7 +28,7 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
-from numba import njit, prange
+from numba import get_num_threads, njit, prange
 
 from .cost import pixel_cost, sparse_pair_cost
 
@@ -289,44 +289,54 @@ def _normalised_slice(guide, grid_val, grid_w, geom, density, missing_value, cha
 # plus a band of ~(max_disp + blur reach) / cell columns.
 
 
-@njit(cache=True)
+@njit(cache=True, parallel=True)
 def _splat_sparse_dsi_split(rows, cols, right_values, right_steps, left, guide, min_disp, truncation,
                             step_spacing, step_weight, step_truncation, inv_cs, inv_cr,
-                            grid_val, band_w, occupied):
+                            grid_val, band_w, occupied, blocks):
     """Splat Eq. (2): right sample k at (row, col) meets left pixel (row, col + d) in layer d.
 
     The weights of layer i are written only into x-cells [0, B) of ``band_w`` (B = its
     second dimension): the regular-grid path keeps just the left-border band per layer;
     passing a full-width ``band_w`` gives every layer its own complete weight grid.
+
+    The layers are cut into ``blocks`` contiguous blocks, one per thread: every block
+    splats all samples into its own layers, so no two threads add into the same grid
+    value and every value receives its samples in the same order as on one thread (the
+    result does not depend on the thread count).
     """
     gy_n, gx_n, gz_n, num_disp = grid_val.shape
     band_n = band_w.shape[1]
     w = left.shape[1]
-    for k in range(rows.shape[0]):
-        y = rows[k]
-        y0, ty = _hat(y * inv_cs, gy_n)
-        for i in range(num_disp):
-            x = cols[k] + min_disp + i
-            if x < 0 or x >= w:
-                continue
-            left_step = np.float32(np.nan)
-            if step_weight > 0 and x + step_spacing < w:
-                left_step = guide[y, x + step_spacing] - guide[y, x]
-            cost = sparse_pair_cost(left[y, x], right_values[k], left_step, right_steps[k], truncation,
-                                    step_weight, step_truncation)
-            x0, tx = _hat(x * inv_cs, gx_n)
-            z0, tz = _hat(guide[y, x] * inv_cr, gz_n)
-            for a in range(2):
-                wy = ty if a else 1 - ty
-                for b in range(2):
-                    wx = tx if b else 1 - tx
-                    for c in range(2):
-                        wz = tz if c else 1 - tz
-                        wgt = wy * wx * wz
-                        grid_val[y0 + a, x0 + b, z0 + c, i] += wgt * cost
-                        occupied[y0 + a, x0 + b, z0 + c] = True
-                        if x0 + b < band_n:
-                            band_w[y0 + a, x0 + b, z0 + c, i] += wgt
+    blocks = max(1, min(blocks, num_disp))
+    for block in prange(blocks):
+        first = block * num_disp // blocks
+        last = (block + 1) * num_disp // blocks
+        for k in range(rows.shape[0]):
+            y = rows[k]
+            y0, ty = _hat(y * inv_cs, gy_n)
+            for i in range(first, last):
+                x = cols[k] + min_disp + i
+                if x < 0 or x >= w:
+                    continue
+                left_step = np.float32(np.nan)
+                if step_weight > 0 and x + step_spacing < w:
+                    left_step = guide[y, x + step_spacing] - guide[y, x]
+                cost = sparse_pair_cost(left[y, x], right_values[k], left_step, right_steps[k], truncation,
+                                        step_weight, step_truncation)
+                x0, tx = _hat(x * inv_cs, gx_n)
+                z0, tz = _hat(guide[y, x] * inv_cr, gz_n)
+                for a in range(2):
+                    wy = ty if a else 1 - ty
+                    for b in range(2):
+                        wx = tx if b else 1 - tx
+                        for c in range(2):
+                            wz = tz if c else 1 - tz
+                            wgt = wy * wx * wz
+                            grid_val[y0 + a, x0 + b, z0 + c, i] += wgt * cost
+                            # Every thread writes the same True: a benign overlap.
+                            occupied[y0 + a, x0 + b, z0 + c] = True
+                            if x0 + b < band_n:
+                                band_w[y0 + a, x0 + b, z0 + c, i] += wgt
 
 
 @njit(cache=True)
@@ -465,7 +475,8 @@ def _filled_sparse_dsi_split(left, guide, rows, cols, right_values, right_steps,
                             np.ascontiguousarray(right_values, np.float32),
                             np.ascontiguousarray(right_steps, np.float32), left, guide, int(min_disp),
                             np.float32(truncation), int(step_spacing), np.float32(step_weight),
-                            np.float32(step_truncation), inv_cs, inv_cr, grid_val, band_w, occupied)
+                            np.float32(step_truncation), inv_cs, inv_cr, grid_val, band_w, occupied,
+                            get_num_threads())
     base_w = np.zeros(geom.shape + (min(stride, num_disp),), np.float32)
     first_column = (offset_x + min_disp + np.arange(base_w.shape[3], dtype=np.int64)) % stride
     _splat_lattice_weights(np.unique(np.asarray(rows, np.int64)), first_column, int(stride), guide,
@@ -583,7 +594,7 @@ def filled_sparse_dsi(left: np.ndarray, guide: np.ndarray, rows: np.ndarray, col
                             np.ascontiguousarray(right_steps, np.float32), left, guide, int(min_disp),
                             np.float32(truncation), int(step_spacing), np.float32(step_weight),
                             np.float32(step_truncation), 1.0 / geom.cell_s, 1.0 / geom.cell_r, grid_val, grid_w,
-                            occupied)
+                            occupied, get_num_threads())
     grid_val = _blur_grid(grid_val, geom, occupied)
     grid_w = _blur_grid(grid_w, geom, occupied)
     density = len(rows) / float(h * w)
