@@ -16,7 +16,9 @@ Sections (each timed in this one run, so the ratios compare like with like):
    tiled under that budget and are marked so.
 4. Command line: the process wall time of a single-shot ``sb-decode`` on Teddy with a
    warm numba cache (what a cron job pays per call), and of ``sb-encode --raw``, which
-   must not import numpy, numba or OpenCV (checked).
+   must not import numpy, numba or OpenCV (checked).  ``--cli-env VENV`` times the
+   commands of another environment, e.g. one made by a plain ``pip install .`` (the
+   test extra brings SciPy, which numba imports on its first kernel: ~0.3 s more).
 5. Encoder: ``encode_image`` + ``write_samples`` frames/s in-process and per process, vs
    OpenCV's JPEG 2000 and WebP encoders at a quality binary-searched to the same bytes.
 6. ``--big``: a 12 MP (4000x3000) frame with 256 disparities, Sparse (tiled
@@ -27,6 +29,7 @@ Examples
     python scripts/bench.py --quick                  # 1-3 minutes
     python scripts/bench.py --json bench.json        # full report
     python scripts/bench.py --big --skip-scaling     # the 12 MP run only (plus Teddy)
+    python scripts/bench.py --sections cli --cli-env /tmp/rt   # after python -m venv /tmp/rt && /tmp/rt/bin/pip install .
 """
 
 from __future__ import annotations
@@ -61,9 +64,18 @@ def _fmt_s(seconds: float) -> str:
     return f"{seconds:.3f}" if seconds == seconds else "–"
 
 
+#: ``--cli-env``: the bin folder of the environment whose commands the command-line section times.
+CLI_BIN: Path | None = None
+
+
+def _cli_python() -> str:
+    """The interpreter of the environment whose commands are timed."""
+    return str(CLI_BIN / "python") if CLI_BIN is not None else sys.executable
+
+
 def _bin_path(name: str) -> str:
-    """A console script installed beside the running interpreter (venv), else on PATH."""
-    candidate = Path(sys.executable).with_name(name)
+    """A console script of that environment (beside its interpreter), else on PATH."""
+    candidate = Path(_cli_python()).with_name(name)
     return str(candidate) if candidate.exists() else name
 
 
@@ -369,20 +381,27 @@ def cli_benchmark(data_dir: Path, *, repeats: int) -> dict:
                  "print('numpy' in sys.modules, 'numba' in sys.modules, 'cv2' in sys.modules)")
         # cwd outside the checkout: `python -c` puts the cwd first on sys.path, and the source
         # tree's stereobudget/ lacks the stereobudget.cli subpackage that installation maps in.
-        proc = subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True,
+        proc = subprocess.run([_cli_python(), "-c", probe], capture_output=True, text=True,
                               cwd=tempfile.gettempdir())
         flags = proc.stdout.split()
         flags = flags[-3:] if len(flags) >= 3 else ["?"] * 3
         out["sb-encode imports numpy"], out["sb-encode imports numba"], out["sb-encode imports cv2"] = flags
+        # numba probes for SciPy's BLAS when it first compiles or loads a kernel: with SciPy
+        # installed (the test extra brings it) that adds ~0.3 s to every decoding process.
+        proc = subprocess.run([_cli_python(), "-c", "import importlib.util as u; print(u.find_spec('scipy') is not None)"],
+                              capture_output=True, text=True, cwd=tempfile.gettempdir())
+        out["environment has scipy"] = proc.stdout.strip() or "?"
+        out["environment"] = str(Path(_cli_python()).parent.parent)
         walls, cpus = [], []
         for _ in range(repeats):
-            wall, cpu, _ = _timed_process([sys.executable, "-c", "pass"], check=True)
+            wall, cpu, _ = _timed_process([_cli_python(), "-c", "pass"], check=True)
             walls.append(wall)
             cpus.append(cpu)
         out["bare python"] = {"wall": _median(walls), "cpu": _median(cpus)}
         walls, cpus = [], []
         for _ in range(repeats):
-            wall, cpu, _ = _timed_process([sys.executable, "-c", "import stereobudget.decoders, cv2"], check=True)
+            wall, cpu, _ = _timed_process([_cli_python(), "-c", "import stereobudget.decoders, cv2"], check=True,
+                                          cwd=tempfile.gettempdir())
             walls.append(wall)
             cpus.append(cpu)
         out["python -c 'import stereobudget.decoders, cv2'"] = {"wall": _median(walls), "cpu": _median(cpus)}
@@ -399,6 +418,9 @@ def cli_report(r: dict) -> list[str]:
     lines.append("")
     lines.append(f"sb-encode --raw imports numpy: {r.get('sb-encode imports numpy')}, "
                  f"numba: {r.get('sb-encode imports numba')}, OpenCV: {r.get('sb-encode imports cv2')}.")
+    lines.append("")
+    lines.append(f"Environment timed: {r.get('environment')} (SciPy installed: {r.get('environment has scipy')}; "
+                 "numba imports SciPy's BLAS on its first kernel when SciPy is there).")
     return lines + [""]
 
 
@@ -549,11 +571,20 @@ def parse_args(argv=None):
     parser.add_argument("--big-methods", default="sparse", help="methods of the --big run (comma-separated)")
     parser.add_argument("--budget", type=float, default=8.0, help="memory budget in GiB for scaling / --big")
     parser.add_argument("--json", type=Path, default=None, help="also write every number to this JSON file")
+    parser.add_argument("--cli-env", type=Path, default=None,
+                        help="virtual environment whose sb-decode / sb-encode the command-line section times "
+                             "(default: this interpreter's; e.g. one made by `pip install .` without test extras)")
     return parser.parse_args(argv)
 
 
 def main(argv=None) -> int:
     args = parse_args(argv)
+    global CLI_BIN
+    if args.cli_env is not None:
+        CLI_BIN = args.cli_env / "bin"
+        if not (CLI_BIN / "python").exists():
+            print(f"bench.py: error: {args.cli_env} is not a virtual environment (no bin/python)", file=sys.stderr)
+            return 2
     from stereobudget.middlebury import default_data_dir
     data_dir = args.data or default_data_dir()
     if not (data_dir / "teddy" / "left.png").is_file():
