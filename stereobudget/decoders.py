@@ -89,7 +89,7 @@ class DecoderParams:
         per range sigma (:func:`stereobudget.bilateral.grid_geometry`).  One cell per
         sigma is Paris & Durand's sampling rate; the grid blur is narrowed so the
         effective kernel keeps its sigma, and the sweep in docs/performance.md
-        (``scripts/sweep_grid.py``) finds every scene within 0.2 pp of 2 cells per
+        (``scripts/sweep.py``) finds every scene within 0.2 pp of 2 cells per
         sigma at strides 3, 5 and 8, for 1/8 of the grid cells.
     """
 
@@ -109,6 +109,7 @@ class DecoderParams:
     hybrid_sparse_weight: float | None = None
     grid_cells_per_sigma_s: float = 1.0
     grid_cells_per_sigma_r: float = 1.0
+    right_check: str = "tree"
 
 
 @dataclass
@@ -340,8 +341,10 @@ def _decode_hybrid(left_f, guide, samples, tree, *, min_disp, num_disp, params, 
         # In place (no volume-sized temporary); cost_lp is then recycled for the right view.
         cost_lp *= np.float32((1.0 - weight) / dense_max)
         cost += cost_lp
-    with timer("tree"):
-        right_tree = _tree.build_tree(right_lp, sigma=params.tree_sigma, median_size=params.tree_median)
+    right_tree = None
+    if params.right_check == "tree":
+        with timer("tree"):
+            right_tree = _tree.build_tree(right_lp, sigma=params.tree_sigma, median_size=params.tree_median)
     disp, _ = left_right_refined_disparity(cost, left_tree=tree, right_tree=right_tree, min_disp=min_disp,
                                            params=params, timer=timer, scratch=cost_lp)
     return disp
@@ -407,6 +410,8 @@ def _resolve_method(left, samples, *, method, params, min_disp, max_disp):
     method = method or DEFAULT_METHOD
     if method not in METHODS:
         raise OptionError(f"unknown method {method!r}; expected one of {', '.join(METHODS)}")
+    if params.right_check not in ("tree", "diagonal"):
+        raise OptionError(f"unknown right_check {params.right_check!r}; expected 'tree' or 'diagonal'")
     check_inputs(left, samples, min_disp=min_disp, max_disp=max_disp)
     if _is_full_grid(samples):
         method = "full"

@@ -64,6 +64,59 @@ def right_view_cost(left_cost, min_disp, *, out=None):
 
 
 @njit(cache=True, parallel=True)
+def right_disparity_from_left(aggregated, min_disp):
+    """Right-view disparity read off the left view's aggregated costs (Hirschmüller's diagonal search).
+
+    Right pixel ``xr`` at disparity ``d`` is left pixel ``xr + d``, so its cost at layer
+    ``i`` is ``aggregated[y, xr + min_disp + i, i]`` (border column outside the image, as in
+    :func:`right_view_cost`); the winner and its parabola fit are those of
+    ``winner_take_all(right_view_cost(aggregated))``, without the second volume, the right
+    image's tree or its aggregation.
+
+    Parameters
+    ----------
+    aggregated : ndarray, float32 (H, W, D)
+        Left-view cost aggregated on the left tree.
+    min_disp : int
+
+    Returns
+    -------
+    ndarray, float32 (H, W)
+    """
+    h, w, nd = aggregated.shape
+    out = np.empty((h, w), dtype=np.float32)
+    for y in prange(h):
+        diagonal = np.empty(nd, dtype=np.float32)
+        for xr in range(w):
+            for i in range(nd):
+                x = xr + min_disp + i
+                if x < 0:
+                    x = 0
+                elif x >= w:
+                    x = w - 1
+                diagonal[i] = aggregated[y, x, i]
+            best = 0
+            bv = diagonal[0]
+            for i in range(1, nd):
+                if diagonal[i] < bv:
+                    bv = diagonal[i]
+                    best = i
+            sub = np.float32(0.0)
+            if 0 < best < nd - 1:
+                cm = diagonal[best - 1]
+                cp = diagonal[best + 1]
+                denom = cm - 2 * bv + cp
+                if denom > 1e-12:
+                    sub = np.float32(0.5) * (cm - cp) / denom
+                    if sub > 0.5:
+                        sub = np.float32(0.5)
+                    elif sub < -0.5:
+                        sub = np.float32(-0.5)
+            out[y, xr] = min_disp + best + sub
+    return out
+
+
+@njit(cache=True, parallel=True)
 def left_right_stable(disp_left, disp_right, tolerance):
     """Boolean (H, W): left pixels whose disparity the right view confirms within ``tolerance``."""
     h, w = disp_left.shape
@@ -131,8 +184,12 @@ def left_right_refined_disparity(cost, *, left_tree, right_tree, min_disp, param
     ----------
     cost : ndarray, float32 (H, W, D)
         Unaggregated left-view cost; consumed (aggregated in place).
-    left_tree, right_tree : stereobudget.tree.MinimumSpanningTree
-        Trees of the left image and of the (possibly interpolated) right image.
+    left_tree : stereobudget.tree.MinimumSpanningTree
+        Tree of the left image.
+    right_tree : stereobudget.tree.MinimumSpanningTree or None
+        Tree of the (possibly interpolated) right image: the right view's costs are
+        aggregated on it, as Yang does.  ``None``: the right disparity is read off the
+        left view's aggregated costs instead (:func:`right_disparity_from_left`).
     min_disp : int
     params : stereobudget.decoders.DecoderParams
     timer : callable
@@ -150,12 +207,16 @@ def left_right_refined_disparity(cost, *, left_tree, right_tree, min_disp, param
     from .decoders import winner_take_all, median_filter_disparity
     num_disp = cost.shape[2]
     with timer("aggregate"):
-        cost_r = right_view_cost(cost, int(min_disp), out=scratch)
+        cost_r = right_view_cost(cost, int(min_disp), out=scratch) if right_tree is not None else None
         cost = _tree.aggregate(cost, left_tree, out=cost)
-        cost_r = _tree.aggregate(cost_r, right_tree, out=cost_r)
+        if cost_r is not None:
+            cost_r = _tree.aggregate(cost_r, right_tree, out=cost_r)
     with timer("wta"):
         disp_l = winner_take_all(cost, int(min_disp))
-        disp_r = winner_take_all(cost_r, int(min_disp))
+        if cost_r is not None:
+            disp_r = winner_take_all(cost_r, int(min_disp))
+        else:
+            disp_r = right_disparity_from_left(cost, int(min_disp))
     del cost_r
     with timer("refine"):
         stable = left_right_stable(disp_l, disp_r, np.float32(1.0))
@@ -174,8 +235,10 @@ def full_pair_disparity(left_f, right_f, *, tree, min_disp, num_disp, params, ti
         cost = full_dsi(left_f, right_f, min_disp=min_disp, num_disp=num_disp,
                         truncation=params.full_truncation, grad_weight=params.grad_weight,
                         grad_truncation=params.grad_truncation)
-    with timer("tree"):
-        right_tree = _tree.build_tree(right_f, sigma=params.tree_sigma, median_size=params.tree_median)
+    right_tree = None
+    if params.right_check == "tree":
+        with timer("tree"):
+            right_tree = _tree.build_tree(right_f, sigma=params.tree_sigma, median_size=params.tree_median)
     disp, _ = left_right_refined_disparity(cost, left_tree=tree, right_tree=right_tree, min_disp=min_disp,
                                            params=params, timer=timer)
     return disp

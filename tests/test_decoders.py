@@ -141,3 +141,24 @@ def test_sample_row_steps_are_exact_differences():
     steps = sample_row_steps(lattice)
     assert steps[0, 0] == 3 and steps[0, 1] == 5 and steps[1, 1] == 5
     assert np.isnan(steps[:, 2]).all()
+
+
+@pytest.mark.parametrize("min_disp", [0, -3, 4])
+def test_diagonal_right_disparity_equals_the_right_view_winner(min_disp):
+    from stereobudget.refine import right_disparity_from_left, right_view_cost
+    rng = np.random.default_rng(3)
+    aggregated = rng.random((7, 23, 9), dtype=np.float32)
+    expected = winner_take_all(right_view_cost(aggregated, min_disp), min_disp)
+    np.testing.assert_array_equal(right_disparity_from_left(aggregated, min_disp), expected)
+
+
+def test_diagonal_right_check_decodes_without_a_right_tree(scene):
+    import dataclasses
+    samples = encode_image(scene.right, pattern=SamplingPattern("grid", 5, 5))
+    params = dataclasses.replace(DecoderParams(), right_check="diagonal")
+    result = stereobudget.decode(scene.left, samples, max_disp=int(np.ceil(scene.max_disp)), method="hybrid",
+                                 params=params)
+    assert _good_fraction(result.disparity, scene) >= 0.95
+    with pytest.raises(OptionError, match="right_check"):
+        stereobudget.decode(scene.left, samples, max_disp=int(np.ceil(scene.max_disp)),
+                            params=dataclasses.replace(DecoderParams(), right_check="both"))
