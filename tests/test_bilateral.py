@@ -50,6 +50,28 @@ def test_grid_filter_matches_brute_force(stride):
         assert err.max() < 0.6
 
 
+@pytest.mark.parametrize("stride", [3, 5])
+def test_decoder_grid_resolution_matches_brute_force(stride):
+    # The decoders' fill: 1 grid cell per sigma, sigma_s = 2 * stride, sigma_r = 15.
+    h, w = 60, 80
+    guide = _textured(h, w)
+    rng = np.random.default_rng(1)
+    rr, cc = np.mgrid[0:h:stride, 1:w:stride]
+    rows, cols = rr.ravel(), cc.ravel()
+    values = np.stack([guide[rows, cols] * 0.5, rng.uniform(0, 50, rows.size)], axis=1).astype(np.float32)
+    sigma_s, sigma_r = 2.0 * stride, 15.0
+    fast = sparse_joint_bilateral(guide, rows, cols, values, sigma_s=sigma_s, sigma_r=sigma_r,
+                                  cells_per_sigma_s=1.0, cells_per_sigma_r=1.0)
+    ref = brute_force_sparse_jbf(guide, rows, cols, values, sigma_s=sigma_s, sigma_r=sigma_r)
+    # Measured: mean |error| 0.14-0.33, 99th percentile 0.49-1.22, max 0.85-2.26 intensity
+    # units (values span 0..127 and 0..50), i.e. about 5x the 2-cells-per-sigma errors.
+    for ch in range(2):
+        err = np.abs(fast[..., ch] - ref[..., ch])
+        assert np.mean(err) < 0.5
+        assert np.percentile(err, 99) < 2.0
+        assert err.max() < 3.5
+
+
 def test_filled_dsi_matches_per_layer_brute_force():
     h, w, stride, min_disp, num_disp = 40, 64, 4, 0, 6
     rng = np.random.default_rng(3)
