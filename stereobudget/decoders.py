@@ -154,6 +154,31 @@ class _Timer:
         return _Ctx()
 
 
+@njit(cache=True, inline="always")
+def subpixel_winner(costs, min_disp):
+    """Disparity of the smallest of ``costs`` (one pixel's layers), refined by a parabola
+    through the minimum and its two neighbours (offset clamped to +-0.5)."""
+    nd = costs.shape[0]
+    best = 0
+    bv = costs[0]
+    for i in range(1, nd):
+        if costs[i] < bv:
+            bv = costs[i]
+            best = i
+    sub = np.float32(0.0)
+    if 0 < best < nd - 1:
+        cm = costs[best - 1]
+        cp = costs[best + 1]
+        denom = cm - 2 * bv + cp
+        if denom > 1e-12:
+            sub = np.float32(0.5) * (cm - cp) / denom
+            if sub > 0.5:
+                sub = np.float32(0.5)
+            elif sub < -0.5:
+                sub = np.float32(-0.5)
+    return min_disp + best + sub
+
+
 @njit(cache=True, parallel=True)
 def winner_take_all(cost, min_disp):
     """Per-pixel argmin over disparity with a parabola fit through the minimum and its neighbours.
@@ -171,25 +196,7 @@ def winner_take_all(cost, min_disp):
     out = np.empty((h, w), dtype=np.float32)
     for y in prange(h):
         for x in range(w):
-            c = cost[y, x]
-            best = 0
-            bv = c[0]
-            for i in range(1, nd):
-                if c[i] < bv:
-                    bv = c[i]
-                    best = i
-            sub = np.float32(0.0)
-            if 0 < best < nd - 1:
-                cm = c[best - 1]
-                cp = c[best + 1]
-                denom = cm - 2 * bv + cp
-                if denom > 1e-12:
-                    sub = np.float32(0.5) * (cm - cp) / denom
-                    if sub > 0.5:
-                        sub = np.float32(0.5)
-                    elif sub < -0.5:
-                        sub = np.float32(-0.5)
-            out[y, x] = min_disp + best + sub
+            out[y, x] = subpixel_winner(cost[y, x], min_disp)
     return out
 
 

@@ -20,6 +20,7 @@ from numba import njit, prange
 
 from . import tree as _tree
 from .cost import full_dsi
+from .decoders import subpixel_winner
 
 
 @njit(cache=True, parallel=True)
@@ -95,24 +96,7 @@ def right_disparity_from_left(aggregated, min_disp):
                 elif x >= w:
                     x = w - 1
                 diagonal[i] = aggregated[y, x, i]
-            best = 0
-            bv = diagonal[0]
-            for i in range(1, nd):
-                if diagonal[i] < bv:
-                    bv = diagonal[i]
-                    best = i
-            sub = np.float32(0.0)
-            if 0 < best < nd - 1:
-                cm = diagonal[best - 1]
-                cp = diagonal[best + 1]
-                denom = cm - 2 * bv + cp
-                if denom > 1e-12:
-                    sub = np.float32(0.5) * (cm - cp) / denom
-                    if sub > 0.5:
-                        sub = np.float32(0.5)
-                    elif sub < -0.5:
-                        sub = np.float32(-0.5)
-            out[y, xr] = min_disp + best + sub
+            out[y, xr] = subpixel_winner(diagonal, min_disp)
     return out
 
 

@@ -30,46 +30,33 @@ def _textured(h, w, seed=0):
     return np.clip(img + rng.normal(0, 3, (h, w)), 0, 255).astype(np.float32)
 
 
+# (cells per sigma, sigma_s per stride, sigma_r, bounds on mean / 99th percentile / max |error|).
+# Measured on the scene below, values spanning 0..127 and 0..50:
+# - 2 cells per sigma (the module default), the paper's sigmas: mean ~0.04, p99 ~0.18;
+# - 1 cell per sigma with the decoders' sigmas (2 * stride, 15): mean 0.14-0.33,
+#   p99 0.49-1.22, max 0.85-2.26, about 5x the errors of the finer grid.
+GRID_CASES = [(2.0, 3.0, 20.0, (0.1, 0.4, 0.6)), (1.0, 2.0, 15.0, (0.5, 2.0, 3.5))]
+
+
+@pytest.mark.parametrize("cells, sigma_s_per_stride, sigma_r, bounds", GRID_CASES)
 @pytest.mark.parametrize("stride", [3, 5])
-def test_grid_filter_matches_brute_force(stride):
+def test_grid_filter_matches_brute_force(stride, cells, sigma_s_per_stride, sigma_r, bounds):
     h, w = 60, 80
     guide = _textured(h, w)
     rng = np.random.default_rng(1)
     rr, cc = np.mgrid[0:h:stride, 1:w:stride]
     rows, cols = rr.ravel(), cc.ravel()
     values = np.stack([guide[rows, cols] * 0.5, rng.uniform(0, 50, rows.size)], axis=1).astype(np.float32)
-    sigma_s, sigma_r = 3.0 * stride, 20.0
-    fast = sparse_joint_bilateral(guide, rows, cols, values, sigma_s=sigma_s, sigma_r=sigma_r)
-    ref = brute_force_sparse_jbf(guide, rows, cols, values, sigma_s=sigma_s, sigma_r=sigma_r)
-    # Measured with the default 2 cells per sigma: mean |error| ~0.04, 99th percentile
-    # ~0.18 intensity units (values span 0..127 and 0..50).  Tolerance: 0.1 / 0.4 / 0.6.
-    for ch in range(2):
-        err = np.abs(fast[..., ch] - ref[..., ch])
-        assert np.mean(err) < 0.1
-        assert np.percentile(err, 99) < 0.4
-        assert err.max() < 0.6
-
-
-@pytest.mark.parametrize("stride", [3, 5])
-def test_decoder_grid_resolution_matches_brute_force(stride):
-    # The decoders' fill: 1 grid cell per sigma, sigma_s = 2 * stride, sigma_r = 15.
-    h, w = 60, 80
-    guide = _textured(h, w)
-    rng = np.random.default_rng(1)
-    rr, cc = np.mgrid[0:h:stride, 1:w:stride]
-    rows, cols = rr.ravel(), cc.ravel()
-    values = np.stack([guide[rows, cols] * 0.5, rng.uniform(0, 50, rows.size)], axis=1).astype(np.float32)
-    sigma_s, sigma_r = 2.0 * stride, 15.0
+    sigma_s = sigma_s_per_stride * stride
     fast = sparse_joint_bilateral(guide, rows, cols, values, sigma_s=sigma_s, sigma_r=sigma_r,
-                                  cells_per_sigma_s=1.0, cells_per_sigma_r=1.0)
+                                  cells_per_sigma_s=cells, cells_per_sigma_r=cells)
     ref = brute_force_sparse_jbf(guide, rows, cols, values, sigma_s=sigma_s, sigma_r=sigma_r)
-    # Measured: mean |error| 0.14-0.33, 99th percentile 0.49-1.22, max 0.85-2.26 intensity
-    # units (values span 0..127 and 0..50), i.e. about 5x the 2-cells-per-sigma errors.
+    mean_bound, p99_bound, max_bound = bounds
     for ch in range(2):
         err = np.abs(fast[..., ch] - ref[..., ch])
-        assert np.mean(err) < 0.5
-        assert np.percentile(err, 99) < 2.0
-        assert err.max() < 3.5
+        assert np.mean(err) < mean_bound
+        assert np.percentile(err, 99) < p99_bound
+        assert err.max() < max_bound
 
 
 def test_filled_dsi_matches_per_layer_brute_force():
