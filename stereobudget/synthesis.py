@@ -50,6 +50,8 @@ DEFAULT_ENHANCE_SIGMA_S_PER_STRIDE = 1.0
 DEFAULT_ENHANCE_SIGMA_R = 20.0
 #: Wiener shrinkage of the enhancement (see :func:`enhance_with_samples`).
 DEFAULT_ENHANCE_SHRINKAGE = 2.0
+#: Bilateral-grid resolution of the enhancement filter (cells per sigma, space and range).
+ENHANCE_GRID_CELLS_PER_SIGMA = 1.0
 
 
 # =====================================================================================
@@ -473,7 +475,9 @@ def enhance_with_samples(image: np.ndarray, holes: np.ndarray, samples: SampleSe
         sigma_s = DEFAULT_ENHANCE_SIGMA_S_PER_STRIDE * _stride(samples)
     channels = difference if shrinkage is None else np.concatenate([difference, difference ** 2], axis=1)
     filtered = sparse_joint_bilateral(to_gray(img), rows, cols, channels, sigma_s=max(float(sigma_s), 1.0),
-                                      sigma_r=float(sigma_r), missing_value=0.0)
+                                      sigma_r=float(sigma_r), missing_value=0.0,
+                                      cells_per_sigma_s=ENHANCE_GRID_CELLS_PER_SIGMA,
+                                      cells_per_sigma_r=ENHANCE_GRID_CELLS_PER_SIGMA)
     correction = filtered[:, :, :n_ch]
     if shrinkage is not None:
         variance = np.maximum(filtered[:, :, n_ch:] - correction ** 2, 0.0)
