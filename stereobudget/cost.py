@@ -82,7 +82,8 @@ def sample_row_steps(lattice_gray: np.ndarray) -> np.ndarray:
 
 @njit(cache=True, parallel=True)
 def _full_dsi(left, right, left_grad, right_grad, min_disp, num_disp, truncation,
-              grad_truncation, grad_weight, out):
+              grad_truncation, grad_weight, out, mix, keep_weight, dsi_weight):
+    """out = DSI, or with ``mix`` out = keep_weight * out + dsi_weight * DSI (in place)."""
     h, w, channels = left.shape
     inv_channels = np.float32(1.0 / channels)
     colour_weight = np.float32(1.0) - grad_weight
@@ -95,6 +96,8 @@ def _full_dsi(left, right, left_grad, right_grad, min_disp, num_disp, truncation
         # column (standard practice outside the image), so that the layers of a pixel read
         # it forwards without branches: the loops over layers vectorise.
         rev = np.empty((channels + 1, span), dtype=np.float32)
+        # Mixing: the sums go to a scratch row, ``out`` still holds the volume mixed into.
+        scratch = np.empty(num_disp if mix else 0, dtype=np.float32)
         for k in range(span):
             xr = first_column + span - 1 - k
             if xr < 0:
@@ -108,25 +111,29 @@ def _full_dsi(left, right, left_grad, right_grad, min_disp, num_disp, truncation
             # Layer i reads I2 column x - min_disp - i, i.e. rev index start + i.
             start = span - 1 - (x - min_disp - first_column)
             o = out[y, x]
+            acc = scratch if mix else o
             # float32 throughout: the same sum as pixel_cost, channels added in order.
             lp = left[y, x, 0]
             row = rev[0]
             for i in range(num_disp):
-                o[i] = abs(lp - row[start + i])
+                acc[i] = abs(lp - row[start + i])
             for ch in range(1, channels):
                 lp = left[y, x, ch]
                 row = rev[ch]
                 for i in range(num_disp):
-                    o[i] += abs(lp - row[start + i])
+                    acc[i] += abs(lp - row[start + i])
             if use_grad:
                 lg = left_grad[y, x]
                 grad = rev[channels]
                 for i in range(num_disp):
                     g = min(abs(lg - grad[start + i]), grad_truncation)
-                    o[i] = colour_weight * min(o[i] * inv_channels, truncation) + grad_weight * g
+                    acc[i] = colour_weight * min(acc[i] * inv_channels, truncation) + grad_weight * g
             else:
                 for i in range(num_disp):
-                    o[i] = min(o[i] * inv_channels, truncation)
+                    acc[i] = min(acc[i] * inv_channels, truncation)
+            if mix:
+                for i in range(num_disp):
+                    o[i] = keep_weight * o[i] + dsi_weight * acc[i]
     return out
 
 
@@ -139,7 +146,8 @@ def horizontal_gradient(gray: np.ndarray) -> np.ndarray:
 
 def full_dsi(left: np.ndarray, right: np.ndarray, *, min_disp: int, num_disp: int,
              truncation: float = DEFAULT_TRUNCATION, grad_weight: float = 0.0,
-             grad_truncation: float = 2.0) -> np.ndarray:
+             grad_truncation: float = 2.0, mix_into: np.ndarray | None = None,
+             mix_weights: tuple[float, float] = (1.0, 1.0)) -> np.ndarray:
     """Full disparity-space image, Eq. (1): ``C(x, y, d) = cost(I1(x, y), I2(x - d, y))``.
 
     Parameters
@@ -155,13 +163,25 @@ def full_dsi(left: np.ndarray, right: np.ndarray, *, min_disp: int, num_disp: in
         Yang's non-local method: ``(1 - alpha) * colour + alpha * gradient``.
     grad_truncation : float
         Truncation of the gradient term.
+    mix_into : ndarray, float32 C-contiguous (H, W, num_disp), optional
+        A volume ``V`` to mix the DSI into, in place:
+        ``V = mix_weights[0] * V + mix_weights[1] * DSI`` (Hybrid's weighted mean), with
+        no DSI-sized temporary.
 
     Returns
     -------
     ndarray, float32 (H, W, num_disp)
+        The DSI, or ``mix_into`` after mixing.
     """
     h, w, _ = left.shape
-    out = np.empty((h, w, num_disp), dtype=np.float32)
+    mix = mix_into is not None
+    if mix:
+        if (mix_into.shape != (h, w, num_disp) or mix_into.dtype != np.float32
+                or not mix_into.flags.c_contiguous):
+            raise ValueError(f"mix_into must be a C-contiguous float32 volume of shape {(h, w, num_disp)}")
+        out = mix_into
+    else:
+        out = np.empty((h, w, num_disp), dtype=np.float32)
     if grad_weight > 0:
         lg = horizontal_gradient(to_gray(left))
         rg = horizontal_gradient(to_gray(right))
@@ -169,7 +189,8 @@ def full_dsi(left: np.ndarray, right: np.ndarray, *, min_disp: int, num_disp: in
         lg = rg = np.zeros((1, 1), np.float32)
     return _full_dsi(np.ascontiguousarray(left, np.float32), np.ascontiguousarray(right, np.float32),
                      lg, rg, int(min_disp), int(num_disp), np.float32(truncation),
-                     np.float32(grad_truncation), np.float32(grad_weight), out)
+                     np.float32(grad_truncation), np.float32(grad_weight), out, mix,
+                     np.float32(mix_weights[0]), np.float32(mix_weights[1]))
 
 
 def noise_level(image_f32: np.ndarray, *, block: int = 8, percentile: float = 20.0) -> float:

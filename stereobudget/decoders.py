@@ -339,21 +339,19 @@ def _decode_hybrid(left_f, guide, samples, tree, *, min_disp, num_disp, params, 
         right_lp = lowpass_interpolation(samples, sigma=sigma)
         left_lp = gaussian_lowpass(left_f, sigma=sigma)
     with timer("cost"):
-        cost_lp = full_dsi(left_lp, right_lp, min_disp=min_disp, num_disp=num_disp,
-                           truncation=params.full_truncation, grad_weight=params.grad_weight,
-                           grad_truncation=params.grad_truncation)
-        # Both DSIs are brought to [0, 1] by their largest possible value before mixing.
+        # Both DSIs are brought to [0, 1] by their largest possible value before mixing;
+        # the dense DSI is mixed into the Sparse one as it is computed (no second volume).
         dense_max = (1 - params.grad_weight) * params.full_truncation + params.grad_weight * params.grad_truncation
-        cost *= np.float32(weight / params.truncation)
-        # In place (no volume-sized temporary); cost_lp is then recycled for the right view.
-        cost_lp *= np.float32((1.0 - weight) / dense_max)
-        cost += cost_lp
+        cost = full_dsi(left_lp, right_lp, min_disp=min_disp, num_disp=num_disp,
+                        truncation=params.full_truncation, grad_weight=params.grad_weight,
+                        grad_truncation=params.grad_truncation, mix_into=cost,
+                        mix_weights=(weight / params.truncation, (1.0 - weight) / dense_max))
     right_tree = None
     if params.right_check == "tree":
         with timer("tree"):
             right_tree = _tree.build_tree(right_lp, sigma=params.tree_sigma, median_size=params.tree_median)
     disp, _ = left_right_refined_disparity(cost, left_tree=tree, right_tree=right_tree, min_disp=min_disp,
-                                           params=params, timer=timer, scratch=cost_lp)
+                                           params=params, timer=timer)
     return disp
 
 
