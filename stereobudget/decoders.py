@@ -362,7 +362,7 @@ def _decode_downsample(left_f, samples, tree, *, min_disp, num_disp, params, tim
     rows, cols = -(-h // p.stride_y), -(-w // p.stride_x)
     with timer("interpolate"):
         low = _sample_values_f32(samples).reshape(rows, cols, samples.channels)
-        right_up = _upsample_blocks(low, p.stride_x, p.stride_y, h, w)
+        right_up = upsample_block_means(low, p.stride_x, p.stride_y, h, w)
         left_up = block_lowpass(left_f, p.stride_x, p.stride_y)
     # From here on the upsampled pair is matched like any full pair (the tree stays I1's own).
     return full_pair_disparity(left_up, right_up, tree=tree, min_disp=min_disp, num_disp=num_disp,
@@ -397,8 +397,8 @@ def block_lowpass(image_f32: np.ndarray, sx: int, sy: int) -> np.ndarray:
     return out.reshape(image_f32.shape)
 
 
-def _upsample_blocks(low: np.ndarray, sx: int, sy: int, h: int, w: int) -> np.ndarray:
-    """Bilinear upsampling of block means to full resolution, block centres aligned."""
+def upsample_block_means(low: np.ndarray, sx: int, sy: int, h: int, w: int) -> np.ndarray:
+    """Bilinear upsampling of (rows, cols, C) block means to a float32 (h, w, C) image, block centres aligned."""
     import cv2
     rows, cols = low.shape[:2]
     ys = (np.arange(h, dtype=np.float32) - (sy - 1) / 2.0) / sy

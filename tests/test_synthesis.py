@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from stereobudget import synthesis
-from stereobudget.container import SampleSet, encode_image
+from stereobudget.container import encode_image
 from stereobudget.errors import MismatchError, OptionError
 from stereobudget.metrics import psnr
 from stereobudget.sampling import SamplingPattern
@@ -284,8 +284,22 @@ def test_recovery_rejects_mismatched_inputs():
         synthesis.recover_right(s.left.astype(np.uint16), s.disparity, samples)
     with pytest.raises(MismatchError):
         synthesis.recover_right(s.left, s.disparity[:-1], samples)
-    block_means = SampleSet(height=64, width=96, channel_order="rgb",
-                            pattern=SamplingPattern("downsample", 4, 4),
-                            values=np.zeros((16 * 24, 3), np.uint8))
     with pytest.raises(OptionError):
-        synthesis.recover_right(s.left, s.disparity, block_means)
+        synthesis.recover_right_from_block_means(s.left, s.disparity, samples)    # not block means
+
+
+@pytest.mark.parametrize("block", [3, 4])
+def test_block_means_are_recovered_by_back_projection(block):
+    from stereobudget.sampling import downsample_blocks
+    s = make_scene("planes", height=96, width=160, seed=4)
+    samples = encode_image(s.right, pattern=SamplingPattern("downsample", block, block))
+    d = perturbed_disparity(s)
+    plain = synthesis.recover_right(s.left, d, samples, enhance=False)
+    out = synthesis.recover_right(s.left, d, samples)
+    assert out.image.shape == s.right.shape and out.image.dtype == np.uint8
+    # The back-projection corrects the warp errors: better than warp + inpaint ...
+    assert psnr(out.image, s.right) > psnr(plain.image, s.right) + 0.5
+    # ... and the result's own block means are the camera's (up to rounding and clipping).
+    error = np.abs(downsample_blocks(out.image, samples.pattern).astype(int) - samples.values.astype(int))
+    assert np.mean(error) < 0.5 and error.max() <= 3
+    assert out.psnr_at_samples_before_reinsertion > out.psnr_at_samples_before_enhancement
