@@ -12,7 +12,9 @@ Three steps, each a pure function on arrays:
    difference ``sample - warped`` with a joint bilateral filter guided by the estimate and
    add it in the non-occluded area, then write every sample back verbatim.
 
-:func:`recover_right` chains them for one left image + sample set + disparity map.
+:func:`recover_right` chains them for one left image + sample set + disparity map.  A
+``downsample`` file sends block means instead of pixels; :func:`recover_right_from_block_means`
+replaces steps 2-3 by upsampled means in the holes and a block-mean back-projection.
 
 Working images are float32 ``(H, W, C)`` in 8-bit units (0..255) whatever the input bit
 depth (see :func:`stereobudget.cost.to_float_image`); the result is converted back to
