@@ -676,6 +676,28 @@ def test_sigint_sigterm_mid_decode_leave_old_or_complete_outputs(kill_inputs, tm
     assert interrupted >= 1
 
 
+@pytest.mark.parametrize("command", ["encode", "decode"])
+def test_ctrl_c_while_the_command_imports_exits_130_without_traceback(command, monkeypatch, capsys):
+    # The console scripts enter through stereobudget.cli._entry, which imports the command
+    # (click, and for sb-decode numpy, OpenCV, numba: up to a second) inside a handler.
+    import importlib
+    entry = importlib.import_module("stereobudget.cli._entry")
+
+    def interrupted_import(name):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(entry.importlib, "import_module", interrupted_import)
+    with pytest.raises(SystemExit) as exit_info:
+        getattr(entry, command)()
+    assert exit_info.value.code == 130
+    assert capsys.readouterr().err == f"sb-{command}: interrupted\n"
+
+
+def test_console_scripts_enter_through_the_interrupt_safe_entry_point():
+    text = (BIN / "sb-decode").read_text() + (BIN / "sb-encode").read_text()
+    assert text.count("stereobudget.cli._entry") == 2
+
+
 def test_sigint_sigterm_mid_encode_leave_old_or_complete_outputs(kill_inputs, tmp_path):
     d, _, big_shape = kill_inputs
     old = write_samples(encode_image(np.zeros((8, 8), np.uint8), pattern=SamplingPattern("grid", 2, 2)))
