@@ -91,6 +91,12 @@ class DecoderParams:
         effective kernel keeps its sigma, and the sweep in docs/performance.md
         (``scripts/sweep.py``) finds every scene within 0.2 pp of 2 cells per
         sigma at strides 3, 5 and 8, for 1/8 of the grid cells.
+    right_check : {"tree", "diagonal"}
+        Where the left-right check of Hybrid, Downsample and the full pair gets the right
+        view's disparity: ``"tree"`` aggregates the right view's costs on the right
+        image's own tree (Yang); ``"diagonal"`` reads it off the left view's aggregated
+        costs (Hirschmüller), which saves a tree and an aggregation (~25 % of Hybrid)
+        but measured 3-5 pp worse on Teddy and Cones (docs/performance.md).
     """
 
     sigma_r: float = 15.0
@@ -192,7 +198,7 @@ def winner_take_all(cost, min_disp):
     -------
     ndarray, float32 (H, W)
     """
-    h, w, nd = cost.shape
+    h, w = cost.shape[:2]
     out = np.empty((h, w), dtype=np.float32)
     for y in prange(h):
         for x in range(w):
