@@ -21,7 +21,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from .atomic import STDIO, check_output_path, display_name, read_input_bytes, write_output_bytes
-from .errors import (CorruptHeaderError, CorruptPayloadError, NotASampleFileError,
+from .errors import (CorruptHeaderError, CorruptPayloadError, ImageReadError, NotASampleFileError, OptionError,
                      TruncatedFileError, UnsupportedVersionError)
 from .limits import dimension_problem
 from .sampling import SamplingPattern, sample_count, sample_positions, grid_shape
@@ -591,8 +591,6 @@ def encode_file(source, output, *, pattern: SamplingPattern, raw_size: tuple[int
         Bad output path (checked before the input is read), unreadable input, or a
         pattern that leaves no sample on this image.
     """
-    from .errors import ImageReadError, OptionError
-
     check_output_path(output, [source], overwrite)
     name = display_name(source)
     log.debug("reading %s", name)
@@ -611,35 +609,24 @@ def encode_file(source, output, *, pattern: SamplingPattern, raw_size: tuple[int
         from . import imageio
         image, channel_order = imageio.read_image(source, name=name)
     height, width = image.shape[:2]
-    if sample_count(pattern, height, width) == 0:
-        raise OptionError(f"offset ({pattern.offset_x},{pattern.offset_y}) leaves no sample in a "
-                          f"{width}x{height} image", path=name)
+    _count_samples(pattern, width, height, name)
     sample_set = encode_image(image, pattern=pattern, channel_order=channel_order)
     data = write_samples(sample_set)
     write_output_bytes(output, data, overwrite=overwrite)
-    payload = len(data) - HEADER_SIZE_V1_0
-    return EncodeReport(
-        source=name, output="<stdout>" if str(output) == STDIO else str(output),
-        width=width, height=height, channels=sample_set.channels, channel_order=channel_order,
-        dtype=str(sample_set.dtype), pattern=pattern.kind, stride_x=pattern.stride_x,
-        stride_y=pattern.stride_y, offset_x=pattern.offset_x, offset_y=pattern.offset_y,
-        seed=pattern.seed, sample_count=sample_set.values.shape[0], epsilon=sample_set.epsilon,
-        header_bytes=HEADER_SIZE_V1_0, payload_bytes=payload, file_size=len(data))
+    return _report(name, output, width=width, height=height, channels=sample_set.channels,
+                   channel_order=channel_order, dtype=str(sample_set.dtype), pattern=pattern,
+                   sample_count=sample_set.values.shape[0], file_size=len(data))
 
 
 def _encode_raw_grid(data, output, *, name: str, raw_size: tuple[int, int], pix_fmt: str,
                      pattern: SamplingPattern, overwrite: bool) -> EncodeReport:
     """:func:`encode_file` for a raw frame on a ``grid``: same checks, errors and bytes, no numpy."""
-    from .errors import OptionError
     from .rawgrid import check_raw_frame, grid_payload
 
     width, height = raw_size
     channels, value_bytes, channel_order = check_raw_frame(data, width=width, height=height,
                                                            pix_fmt=pix_fmt, name=name)
-    n = sample_count(pattern, height, width)
-    if n == 0:
-        raise OptionError(f"offset ({pattern.offset_x},{pattern.offset_y}) leaves no sample in a "
-                          f"{width}x{height} image", path=name)
+    n = _count_samples(pattern, width, height, name)
     _check_writable(width, height, pattern)
     payload = grid_payload(data, width=width, height=height, pixel_bytes=channels * value_bytes,
                            stride_x=pattern.stride_x, stride_y=pattern.stride_y,
@@ -647,10 +634,26 @@ def _encode_raw_grid(data, output, *, name: str, raw_size: tuple[int, int], pix_
     data = _pack_file(width=width, height=height, channel_order=channel_order, dtype_code=value_bytes,
                       pattern=pattern, sample_count=n, payload=payload)
     write_output_bytes(output, data, overwrite=overwrite)
+    return _report(name, output, width=width, height=height, channels=channels, channel_order=channel_order,
+                   dtype=_DTYPE_NAMES[value_bytes], pattern=pattern, sample_count=n, file_size=len(data))
+
+
+def _count_samples(pattern: SamplingPattern, width: int, height: int, name: str) -> int:
+    """Samples the pattern takes from a ``width`` x ``height`` image; OptionError when none."""
+    n = sample_count(pattern, height, width)
+    if n == 0:
+        raise OptionError(f"offset ({pattern.offset_x},{pattern.offset_y}) leaves no sample in a "
+                          f"{width}x{height} image", path=name)
+    return n
+
+
+def _report(name: str, output, *, width: int, height: int, channels: int, channel_order: str, dtype: str,
+            pattern: SamplingPattern, sample_count: int, file_size: int) -> EncodeReport:
+    """The :class:`EncodeReport` of a file written by :func:`encode_file`."""
     return EncodeReport(
         source=name, output="<stdout>" if str(output) == STDIO else str(output),
-        width=width, height=height, channels=channels, channel_order=channel_order,
-        dtype=_DTYPE_NAMES[value_bytes], pattern=pattern.kind, stride_x=pattern.stride_x,
-        stride_y=pattern.stride_y, offset_x=pattern.offset_x, offset_y=pattern.offset_y,
-        seed=pattern.seed, sample_count=n, epsilon=n / float(height * width),
-        header_bytes=HEADER_SIZE_V1_0, payload_bytes=len(payload), file_size=len(data))
+        width=width, height=height, channels=channels, channel_order=channel_order, dtype=dtype,
+        pattern=pattern.kind, stride_x=pattern.stride_x, stride_y=pattern.stride_y,
+        offset_x=pattern.offset_x, offset_y=pattern.offset_y, seed=pattern.seed,
+        sample_count=sample_count, epsilon=sample_count / float(height * width),
+        header_bytes=HEADER_SIZE_V1_0, payload_bytes=file_size - HEADER_SIZE_V1_0, file_size=file_size)
