@@ -3,8 +3,8 @@
 The generated ``sb-encode`` / ``sb-decode`` scripts import their entry point before
 anything else runs.  Importing the commands (click, and for ``sb-decode`` numpy and
 OpenCV) takes a noticeable moment, and a Ctrl-C in it would otherwise end in a
-KeyboardInterrupt traceback; this module imports nothing heavy itself, so the window
-left is the interpreter's own start-up.
+KeyboardInterrupt traceback; this module imports nothing heavy itself (only
+:mod:`stereobudget.errors`), so the window left is the interpreter's own start-up.
 """
 
 from __future__ import annotations
@@ -12,7 +12,7 @@ from __future__ import annotations
 import importlib
 import sys
 
-_EXIT_INTERRUPTED = 130   # = stereobudget.errors.EXIT_INTERRUPTED (not imported: keep this module bare)
+from stereobudget.errors import EXIT_INTERRUPTED   # a module of plain classes: imports nothing
 
 
 def _run(command: str):
@@ -20,7 +20,7 @@ def _run(command: str):
         main = importlib.import_module(f"stereobudget.cli.{command}").main
     except KeyboardInterrupt:
         sys.stderr.write(f"sb-{command}: interrupted\n")
-        sys.exit(_EXIT_INTERRUPTED)
+        sys.exit(EXIT_INTERRUPTED)
     return main()
 
 
