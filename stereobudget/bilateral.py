@@ -325,6 +325,8 @@ def _splat_sparse_dsi_split(rows, cols, right_values, right_steps, left, guide, 
                                         step_weight, step_truncation)
                 x0, tx = _hat(x * inv_cs, gx_n)
                 z0, tz = _hat(guide[y, x] * inv_cr, gz_n)
+                # The 8-corner loop is spelled out in each splat kernel: a shared helper returning
+                # the corners in small arrays measured 50 % slower here.
                 for a in range(2):
                     wy = ty if a else 1 - ty
                     for b in range(2):
