@@ -24,12 +24,11 @@ import time
 from dataclasses import dataclass, field, asdict, replace
 
 import numpy as np
-from numba import njit, prange
-
 from .container import SampleSet
 from .cost import DEFAULT_TRUNCATION, full_dsi, noise_level, sample_row_steps, to_float_image, to_gray
 from .sampling import grid_shape
 from .bilateral import filled_sparse_dsi
+from .winner import subpixel_winner, winner_take_all  # noqa: F401  (re-exported for callers of decoders)
 from .errors import MismatchError, OptionError
 from . import tree as _tree
 
@@ -158,52 +157,6 @@ class _Timer:
             def __exit__(self, *exc):
                 timer.timings[name] = timer.timings.get(name, 0.0) + time.perf_counter() - self.t0
         return _Ctx()
-
-
-@njit(cache=True, inline="always")
-def subpixel_winner(costs, min_disp):
-    """Disparity of the smallest of ``costs`` (one pixel's layers), refined by a parabola
-    through the minimum and its two neighbours (offset clamped to +-0.5)."""
-    nd = costs.shape[0]
-    best = 0
-    bv = costs[0]
-    for i in range(1, nd):
-        if costs[i] < bv:
-            bv = costs[i]
-            best = i
-    sub = np.float32(0.0)
-    if 0 < best < nd - 1:
-        cm = costs[best - 1]
-        cp = costs[best + 1]
-        denom = cm - 2 * bv + cp
-        if denom > 1e-12:
-            sub = np.float32(0.5) * (cm - cp) / denom
-            if sub > 0.5:
-                sub = np.float32(0.5)
-            elif sub < -0.5:
-                sub = np.float32(-0.5)
-    return min_disp + best + sub
-
-
-@njit(cache=True, parallel=True)
-def winner_take_all(cost, min_disp):
-    """Per-pixel argmin over disparity with a parabola fit through the minimum and its neighbours.
-
-    Parameters
-    ----------
-    cost : ndarray, float32 (H, W, D)
-    min_disp : int
-
-    Returns
-    -------
-    ndarray, float32 (H, W)
-    """
-    h, w = cost.shape[:2]
-    out = np.empty((h, w), dtype=np.float32)
-    for y in prange(h):
-        for x in range(w):
-            out[y, x] = subpixel_winner(cost[y, x], min_disp)
-    return out
 
 
 def median_filter_disparity(disparity: np.ndarray, size: int) -> np.ndarray:
@@ -506,9 +459,8 @@ def decode(left: np.ndarray, samples: SampleSet, *, max_disp: int, min_disp: int
         with timer("jbf_fill"):
             cost = _sparse_filled_cost(left_f, guide, samples, min_disp=min_disp, num_disp=num_disp, params=params)
         with timer("aggregate"):
-            cost = _tree.aggregate(cost, tree, out=cost)
+            disp = _tree.aggregate_winners(cost, tree, min_disp=int(min_disp), out=cost)
         with timer("wta"):
-            disp = winner_take_all(cost, int(min_disp))
             disp = median_filter_disparity(disp, params.median_size)
     elif method == "hybrid":
         disp = _decode_hybrid(left_f, guide, samples, tree, min_disp=min_disp, num_disp=num_disp,

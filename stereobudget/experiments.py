@@ -82,7 +82,7 @@ def lower_bound_disparity(left: np.ndarray, right: np.ndarray, *, fraction: floa
     import cv2
 
     from . import tree as _tree
-    from .decoders import median_filter_disparity, winner_take_all
+    from .decoders import median_filter_disparity
     if not 0 < fraction <= 1:
         raise OptionError(f"fraction must be in (0, 1], got {fraction}")
     params = _params(params)
@@ -97,8 +97,7 @@ def lower_bound_disparity(left: np.ndarray, right: np.ndarray, *, fraction: floa
         low = _resize_volume(cost, low_size, cv2.INTER_AREA)           # float32 (h', w', D)
         cost = _resize_volume(low, (w, h), cv2.INTER_LINEAR)
     tree = _tree.build_tree(left_f, sigma=params.tree_sigma, median_size=params.tree_median)
-    cost = _tree.aggregate(cost, tree, out=cost)
-    disp = winner_take_all(cost, int(min_disp))
+    disp = _tree.aggregate_winners(cost, tree, min_disp=int(min_disp), out=cost)
     return median_filter_disparity(disp, params.median_size)
 
 

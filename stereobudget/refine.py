@@ -20,7 +20,7 @@ from numba import njit, prange
 
 from . import tree as _tree
 from .cost import full_dsi
-from .decoders import subpixel_winner
+from .winner import subpixel_winner
 
 
 @njit(cache=True, parallel=True)
@@ -155,10 +155,8 @@ def nonlocal_refinement(disp: np.ndarray, stable: np.ndarray, tree, *, min_disp:
     -------
     ndarray, float32 (H, W)
     """
-    from .decoders import winner_take_all
     cost = _refinement_cost(disp.astype(np.float32), stable, int(min_disp), int(num_disp), out)
-    cost = _tree.aggregate(cost, tree, out=cost)
-    return winner_take_all(cost, int(min_disp))
+    return _tree.aggregate_winners(cost, tree, min_disp=int(min_disp), out=cost)
 
 
 def left_right_refined_disparity(cost, *, left_tree, right_tree, min_disp, params, timer, scratch=None):
@@ -188,18 +186,16 @@ def left_right_refined_disparity(cost, *, left_tree, right_tree, min_disp, param
     stable : ndarray, bool (H, W)
         Pixels that passed the left-right check.
     """
-    from .decoders import winner_take_all, median_filter_disparity
+    from .decoders import median_filter_disparity
     num_disp = cost.shape[2]
     with timer("aggregate"):
+        # Winners are taken during the aggregation walks (no separate pass over the volumes).
         cost_r = right_view_cost(cost, int(min_disp), out=scratch) if right_tree is not None else None
-        cost = _tree.aggregate(cost, left_tree, out=cost)
+        disp_l = _tree.aggregate_winners(cost, left_tree, min_disp=int(min_disp), out=cost)
         if cost_r is not None:
-            cost_r = _tree.aggregate(cost_r, right_tree, out=cost_r)
+            disp_r = _tree.aggregate_winners(cost_r, right_tree, min_disp=int(min_disp), out=cost_r)
     with timer("wta"):
-        disp_l = winner_take_all(cost, int(min_disp))
-        if cost_r is not None:
-            disp_r = winner_take_all(cost_r, int(min_disp))
-        else:
+        if cost_r is None:
             disp_r = right_disparity_from_left(cost, int(min_disp))
     del cost_r
     with timer("refine"):

@@ -29,8 +29,9 @@ import numpy as np
 from numba import njit, prange
 
 from .errors import ImageReadError, OptionError
+from .winner import subpixel_winner
 
-__all__ = ["MinimumSpanningTree", "build_tree", "aggregate"]
+__all__ = ["MinimumSpanningTree", "build_tree", "aggregate", "aggregate_winners"]
 
 # Scale of a uint16 difference to 8-bit units: 65535 / 257 == 255.
 _UINT16_TO_8BIT = 1.0 / 257.0
@@ -326,9 +327,14 @@ def _make_ready(cost, out, ready, v):
 
 
 @njit(cache=True)
-def _downward_range(order, parent, weight, out, lo, hi):
-    """Root-to-leaf pass over order positions ``[lo, hi)``; parents must be final already."""
+def _downward_range(order, parent, weight, out, lo, hi, winners, min_disp):
+    """Root-to-leaf pass over order positions ``[lo, hi)``; parents must be final already.
+
+    With a non-empty ``winners`` (float32 ``(N,)``) each node's winner is taken while its
+    final row is still in cache, which saves a separate pass over the volume.
+    """
     disparities = out.shape[1]
+    take_winners = winners.shape[0] > 0
     for k in range(lo, hi):
         v = order[k]
         s = weight[v]
@@ -337,16 +343,20 @@ def _downward_range(order, parent, weight, out, lo, hi):
         row = out[v]
         for d in range(disparities):
             row[d] = s * above[d] + keep * row[d]
+        if take_winners:
+            winners[v] = subpixel_winner(row, min_disp)
 
 
 @njit(cache=True)
-def _aggregate_serial(cost, order, parent, weight, out):
+def _aggregate_serial(cost, order, parent, weight, out, winners, min_disp):
     """Both passes on one thread; ``cost``/``out`` are ``(N, D)`` float32, may alias."""
     node_count = order.shape[0]
     ready = np.zeros(node_count, dtype=np.uint8)
     _upward_range(cost, order, parent, weight, out, ready, 1, node_count)
     _make_ready(cost, out, ready, order[0])
-    _downward_range(order, parent, weight, out, 1, node_count)
+    if winners.shape[0] > 0:
+        winners[order[0]] = subpixel_winner(out[order[0]], min_disp)
+    _downward_range(order, parent, weight, out, 1, node_count, winners, min_disp)
 
 
 @njit(cache=True)
@@ -368,7 +378,7 @@ def _balanced_subtree(order, parent):
 
 
 @njit(cache=True, parallel=True)
-def _aggregate_two_threads(cost, order, parent, weight, out):
+def _aggregate_two_threads(cost, order, parent, weight, out, winners, min_disp):
     """Both passes with the tree cut into a subtree A and the rest B, one thread each.
 
     In pre-order the subtree of the node at position ``a0`` is the contiguous range
@@ -417,16 +427,21 @@ def _aggregate_two_threads(cost, order, parent, weight, out):
         for d in range(disparities):
             above[d] = s * above[d] + keep * row[d]
 
+    take_winners = winners.shape[0] > 0
+    if take_winners:  # the root's upward sum, now including A's, is its final aggregate
+        winners[order[0]] = subpixel_winner(out[order[0]], min_disp)
     for part in prange(2):
         if part == 0:
             top_similarity = weight[top]
             top_keep = np.float32(1.0) - top_similarity * top_similarity
             for d in range(disparities):
                 total[d] = top_similarity * above[d] + top_keep * total[d]
-            _downward_range(order, parent, weight, out, a0 + 1, a1)
+            if take_winners:
+                winners[top] = subpixel_winner(total, min_disp)
+            _downward_range(order, parent, weight, out, a0 + 1, a1, winners, min_disp)
         else:
-            _downward_range(order, parent, weight, out, 1, a0)
-            _downward_range(order, parent, weight, out, a1, node_count)
+            _downward_range(order, parent, weight, out, 1, a0, winners, min_disp)
+            _downward_range(order, parent, weight, out, a1, node_count, winners, min_disp)
 
 
 # --------------------------------------------------------------------------------------
@@ -532,6 +547,40 @@ def aggregate(cost: np.ndarray, tree: MinimumSpanningTree, *, out: np.ndarray | 
     ValueError
         If the volume or ``out`` does not fit the tree.
     """
+    out, _ = _aggregate(cost, tree, out=out, min_disp=None)
+    return out
+
+
+def aggregate_winners(cost: np.ndarray, tree: MinimumSpanningTree, *, min_disp: int,
+                      out: np.ndarray | None = None) -> np.ndarray:
+    """Aggregate a cost volume over the tree and take each pixel's winner in the same walk.
+
+    The result is ``winner_take_all(aggregate(cost, tree), min_disp)`` bit for bit, but each
+    node's winner is taken as soon as its aggregate is final, while its row is in cache,
+    instead of in a second pass over the whole volume.
+
+    Parameters
+    ----------
+    cost : numpy.ndarray
+        float32 ``(H, W, D)`` matching cost (see :func:`aggregate`).
+    tree : MinimumSpanningTree
+    min_disp : int, keyword-only
+        Disparity of layer 0.
+    out : numpy.ndarray, optional, keyword-only
+        float32 ``(H, W, D)`` array that receives the aggregated volume; may be ``cost``.
+
+    Returns
+    -------
+    numpy.ndarray
+        float32 ``(H, W)`` disparity: the smallest aggregated cost, refined by a parabola
+        (:func:`stereobudget.winner.subpixel_winner`).
+    """
+    _, winners = _aggregate(cost, tree, out=out, min_disp=int(min_disp))
+    return winners
+
+
+def _aggregate(cost, tree, *, out, min_disp):
+    """Shared body of :func:`aggregate` and :func:`aggregate_winners` (``min_disp=None``: no winners)."""
     if cost.ndim != 3 or cost.shape[:2] != (tree.height, tree.width):
         raise ValueError(f"cost volume shape {cost.shape} does not match the tree's {tree.height}x{tree.width} grid")
     cost = np.ascontiguousarray(cost, dtype=np.float32)
@@ -541,12 +590,15 @@ def aggregate(cost: np.ndarray, tree: MinimumSpanningTree, *, out: np.ndarray | 
         raise ValueError(f"out must be a C-contiguous float32 array of shape {cost.shape}")
     node_count = tree.height * tree.width
     disparities = cost.shape[2]
+    take_winners = min_disp is not None
+    winners = np.empty(node_count if take_winners else 0, dtype=np.float32)
     if node_count == 0 or disparities == 0:
-        return out
+        return out, (winners.reshape(tree.height, tree.width) if take_winners else None)
     flat_cost = cost.reshape(node_count, disparities)
     flat_out = out.reshape(node_count, disparities)
+    first = int(min_disp) if take_winners else 0
     if node_count < _PARALLEL_MIN_NODES or numba.get_num_threads() < 2:
-        _aggregate_serial(flat_cost, tree.order, tree.parent, tree.weight, flat_out)
+        _aggregate_serial(flat_cost, tree.order, tree.parent, tree.weight, flat_out, winners, first)
     else:
-        _aggregate_two_threads(flat_cost, tree.order, tree.parent, tree.weight, flat_out)
-    return out
+        _aggregate_two_threads(flat_cost, tree.order, tree.parent, tree.weight, flat_out, winners, first)
+    return out, (winners.reshape(tree.height, tree.width) if take_winners else None)

@@ -17,7 +17,8 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from stereobudget.errors import ImageReadError, OptionError
-from stereobudget.tree import MinimumSpanningTree, aggregate, build_tree
+from stereobudget.tree import MinimumSpanningTree, aggregate, aggregate_winners, build_tree
+from stereobudget.winner import winner_take_all
 import stereobudget.tree as tree_module
 
 SIGMA = 0.1 * 255
@@ -276,7 +277,8 @@ def test_two_thread_split_equals_bruteforce():
     similarity, tree = tree_distance_similarity_bruteforce(guide, sigma=SIGMA, median_size=3)
     expected = similarity @ cost.reshape(-1, 5).astype(np.float64)
     out = np.empty((156, 5), np.float32)
-    tree_module._aggregate_two_threads(cost.reshape(-1, 5), tree.order, tree.parent, tree.weight, out)
+    tree_module._aggregate_two_threads(cost.reshape(-1, 5), tree.order, tree.parent, tree.weight, out,
+                                      np.empty(0, np.float32), 0)
     np.testing.assert_allclose(out, expected, rtol=1e-4)
 
 
@@ -287,11 +289,28 @@ def test_large_grid_parallel_path_matches_serial():
     tree = build_tree(guide)
     assert tree.height * tree.width >= tree_module._PARALLEL_MIN_NODES
     serial = np.empty_like(cost)
-    tree_module._aggregate_serial(cost.reshape(-1, 20), tree.order, tree.parent, tree.weight, serial.reshape(-1, 20))
+    tree_module._aggregate_serial(cost.reshape(-1, 20), tree.order, tree.parent, tree.weight, serial.reshape(-1, 20),
+                                  np.empty(0, np.float32), 0)
     np.testing.assert_allclose(aggregate(cost, tree), serial, rtol=1e-5)
     in_place = cost.copy()
     aggregate(in_place, tree, out=in_place)
     np.testing.assert_allclose(in_place, serial, rtol=1e-5)
+
+
+@pytest.mark.parametrize("shape", [(12, 13), (140, 150)])  # the serial walk and the two-thread split
+def test_winners_taken_during_the_walk_equal_a_separate_winner_pass(shape):
+    rng = np.random.default_rng(21)
+    guide = cv2.GaussianBlur(random_guide(rng, *shape), (0, 0), 1.0)
+    cost = rng.random(shape + (9,), dtype=np.float32)
+    tree = build_tree(guide)
+    aggregated = aggregate(cost, tree)
+    volume = np.empty_like(cost)
+    disparity = aggregate_winners(cost, tree, min_disp=-3, out=volume)
+    assert disparity.shape == shape and disparity.dtype == np.float32
+    assert np.array_equal(disparity, winner_take_all(aggregated, -3))
+    assert np.array_equal(volume, aggregated)
+    # The root and the top of the second thread's subtree are finalised outside the walk.
+    assert np.array_equal(aggregate_winners(cost.copy(), tree, min_disp=-3), disparity)
 
 
 def test_constant_cost_is_aggregated_proportionally_per_pixel():
