@@ -444,8 +444,8 @@ def decode(left: np.ndarray, samples: SampleSet, *, max_disp: int, min_disp: int
         left_f = to_float_image(left)
         guide = to_gray(left_f)
     with timer("tree"):
-        # An 8-bit I1 gives the same tree as its float copy, by a counting sort instead of
-        # a radix sort of the edge weights (~40 % faster).
+        # An 8-bit I1 gives the same tree as its float copy, by a counting sort over 256
+        # keys instead of 65536 (~30 % faster).
         tree = _tree.build_tree(left if left.dtype == np.uint8 else left_f, sigma=params.tree_sigma,
                                 median_size=params.tree_median)
     if samples.pattern.kind == "downsample" and method not in ("downsample",):
