@@ -13,13 +13,13 @@ import logging
 import click
 
 from stereobudget.errors import OptionError
+from stereobudget.methods import DEFAULT_METHOD, METHODS
 
 from . import _batch
 from . import _common as common
 
 log = logging.getLogger("stereobudget")
 
-METHOD_CHOICES = ("sparse", "full", "hybrid", "downsample")
 _OUTPUT_OPTIONS = (("disparity", "--disparity"), ("preview", "--preview"), ("right", "--right"))
 
 
@@ -65,8 +65,8 @@ def _pairs_from_arguments(inputs, left_dir, samples_dir, manifest):
 @click.option("--max-disp", type=click.IntRange(1, 65535), default=None,
               help="Largest disparity searched, in pixels (required unless the manifest has it).")
 @click.option("--min-disp", type=int, default=0, show_default=True, help="Smallest disparity searched.")
-@click.option("--method", type=click.Choice(METHOD_CHOICES), default=None,
-              help="Decoder.  [default: stereobudget.decoders.DEFAULT_METHOD]")
+@click.option("--method", type=click.Choice(METHODS), default=None,
+              help=f"Decoder.  [default: {DEFAULT_METHOD}]")
 @click.option("--disparity", metavar="OUT", default=None,
               help="Disparity map: .pfm, .tif/.tiff (float32), .png (16-bit x256) or .npy.")
 @click.option("--preview", metavar="OUT.png", default=None, help="Colour preview of the disparity (PNG).")

@@ -69,8 +69,8 @@ def log(message: str) -> None:
 
 
 def default_method() -> str:
-    from stereobudget import decoders
-    return getattr(decoders, "DEFAULT_METHOD", "sparse")
+    from stereobudget.methods import DEFAULT_METHOD
+    return DEFAULT_METHOD
 
 
 # =====================================================================================
@@ -184,7 +184,7 @@ def figure8(data_dir=None, out_dir=None, *, scenes=tuple(SCENES), strides=STRIDE
     scenes, strides : sequences
         Which scenes and grid strides to run.
     method : str, optional
-        Decoder method (default: ``stereobudget.decoders.DEFAULT_METHOD``).
+        Decoder method (default: ``stereobudget.methods.DEFAULT_METHOD``).
     plot : bool
         Also write the PNG plot.
 

@@ -40,6 +40,7 @@ from typing import Callable, Iterable, Iterator
 
 from .atomic import STDIO, check_output_path, display_name, redeliver_swallowed_interrupts
 from .errors import MemoryLimitError, OptionError, OutputError, StereoBudgetError
+from .methods import DEFAULT_METHOD
 
 log = logging.getLogger("stereobudget")
 
@@ -582,11 +583,6 @@ def recover_right_image(left, disparity, samples):
     return image, extras
 
 
-def _default_method() -> str:
-    from . import decoders
-    return getattr(decoders, "DEFAULT_METHOD", "sparse")
-
-
 def _check_output_formats(job: DecodeJob) -> None:
     """Refuse unknown output extensions before any work is done."""
     from .dispio import DISPARITY_EXTENSIONS
@@ -667,7 +663,7 @@ def decode_file(job: DecodeJob) -> dict:
         raise type(exc)(f"{exc.message} ({samples_name})", path=left_name) from None
     timings["validate"] = time.perf_counter() - t
 
-    method = job.method or _default_method()
+    method = job.method or DEFAULT_METHOD
     try:
         result = decoders.decode(left, samples, max_disp=job.max_disp, min_disp=job.min_disp, method=method,
                                  max_memory=job.max_memory)

@@ -31,12 +31,10 @@ from .bilateral import filled_sparse_dsi
 from .winner import subpixel_winner, winner_take_all  # noqa: F401  (re-exported for callers of decoders)
 from .errors import MismatchError, OptionError
 from . import tree as _tree
+from .methods import DEFAULT_METHOD, METHODS  # noqa: F401  (re-exported)
 
 log = logging.getLogger("stereobudget")
 
-METHODS = ("hybrid", "sparse", "downsample", "full")
-#: Method used when the caller does not choose one.
-DEFAULT_METHOD = "hybrid"
 
 
 @dataclass(frozen=True)
