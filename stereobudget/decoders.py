@@ -456,9 +456,9 @@ def decode(left: np.ndarray, samples: SampleSet, *, max_disp: int, min_disp: int
     if method == "sparse":
         with timer("jbf_fill"):
             cost = _sparse_filled_cost(left_f, guide, samples, min_disp=min_disp, num_disp=num_disp, params=params)
-        with timer("aggregate"):
+        with timer("aggregate"):  # the winners are taken during the aggregation's walk
             disp = _tree.aggregate_winners(cost, tree, min_disp=int(min_disp), out=cost)
-        with timer("wta"):
+        with timer("median"):
             disp = median_filter_disparity(disp, params.median_size)
     elif method == "hybrid":
         disp = _decode_hybrid(left_f, guide, samples, tree, min_disp=min_disp, num_disp=num_disp,

@@ -194,8 +194,8 @@ def left_right_refined_disparity(cost, *, left_tree, right_tree, min_disp, param
         disp_l = _tree.aggregate_winners(cost, left_tree, min_disp=int(min_disp), out=cost)
         if cost_r is not None:
             disp_r = _tree.aggregate_winners(cost_r, right_tree, min_disp=int(min_disp), out=cost_r)
-    with timer("wta"):
-        if cost_r is None:
+    if cost_r is None:
+        with timer("wta"):
             disp_r = right_disparity_from_left(cost, int(min_disp))
     del cost_r
     with timer("refine"):
