@@ -65,24 +65,32 @@ def right_view_cost(left_cost, min_disp, *, out=None):
 
 
 @njit(cache=True, parallel=True)
-def right_disparity_from_left(aggregated, min_disp):
+def right_disparity_from_left(aggregated, min_disp, support):
     """Right-view disparity read off the left view's aggregated costs (Hirschmüller's diagonal search).
 
     Right pixel ``xr`` at disparity ``d`` is left pixel ``xr + d``, so its cost at layer
-    ``i`` is ``aggregated[y, xr + min_disp + i, i]`` (border column outside the image, as in
-    :func:`right_view_cost`); the winner and its parabola fit are those of
-    ``winner_take_all(right_view_cost(aggregated))``, without the second volume, the right
-    image's tree or its aggregation.
+    ``i`` is that of left pixel ``x = xr + min_disp + i`` (border column outside the image,
+    as in :func:`right_view_cost`).  The diagonal compares *different* left pixels, and
+    Yang's aggregate is an unnormalised sum whose total weight ``support[y, x] = sum_q
+    S(p, q)`` ranges over three orders of magnitude (small in textured areas, large in
+    flat ones): unnormalised, the pixel with the least support wins whatever its match
+    (on Teddy 90 % of the correct pixels then failed the check).  Each left pixel's costs
+    are therefore divided by its support, which turns them into weighted means that can be
+    compared across pixels.
 
     Parameters
     ----------
     aggregated : ndarray, float32 (H, W, D)
         Left-view cost aggregated on the left tree.
     min_disp : int
+    support : ndarray, float32 (H, W)
+        The left tree's aggregate of a constant 1 (``aggregate(ones, tree)``).
 
     Returns
     -------
     ndarray, float32 (H, W)
+        The winner and its parabola fit over ``aggregated[y, x, i] / support[y, x]`` along
+        the diagonal, without a second volume, the right image's tree or its aggregation.
     """
     h, w, nd = aggregated.shape
     out = np.empty((h, w), dtype=np.float32)
@@ -95,7 +103,7 @@ def right_disparity_from_left(aggregated, min_disp):
                     x = 0
                 elif x >= w:
                     x = w - 1
-                diagonal[i] = aggregated[y, x, i]
+                diagonal[i] = aggregated[y, x, i] / support[y, x]
             out[y, xr] = subpixel_winner(diagonal, min_disp)
     return out
 
@@ -196,7 +204,9 @@ def left_right_refined_disparity(cost, *, left_tree, right_tree, min_disp, param
             disp_r = _tree.aggregate_winners(cost_r, right_tree, min_disp=int(min_disp), out=cost_r)
     if cost_r is None:
         with timer("wta"):
-            disp_r = right_disparity_from_left(cost, int(min_disp))
+            h, w = cost.shape[:2]
+            support = _tree.aggregate(np.ones((h, w, 1), np.float32), left_tree)[:, :, 0]
+            disp_r = right_disparity_from_left(cost, int(min_disp), support)
     del cost_r
     with timer("refine"):
         stable = left_right_stable(disp_l, disp_r, np.float32(1.0))

@@ -149,8 +149,26 @@ def test_diagonal_right_disparity_equals_the_right_view_winner(min_disp):
     from stereobudget.refine import right_disparity_from_left, right_view_cost
     rng = np.random.default_rng(3)
     aggregated = rng.random((7, 23, 9), dtype=np.float32)
-    expected = winner_take_all(right_view_cost(aggregated, min_disp), min_disp)
-    np.testing.assert_array_equal(right_disparity_from_left(aggregated, min_disp), expected)
+    support = rng.uniform(1.0, 300.0, (7, 23)).astype(np.float32)
+    # The diagonal search compares the support-normalised costs (weighted means) of left pixels.
+    expected = winner_take_all(right_view_cost(aggregated / support[:, :, None], min_disp), min_disp)
+    np.testing.assert_array_equal(right_disparity_from_left(aggregated, min_disp, support), expected)
+
+
+def test_diagonal_search_is_not_drawn_to_pixels_of_small_support():
+    # A constant-disparity scene whose aggregated costs carry very different supports per
+    # pixel: normalised, every right pixel finds the true disparity; unnormalised it would
+    # pick whichever left pixel has the least support.
+    from stereobudget.refine import right_disparity_from_left
+    rng = np.random.default_rng(4)
+    h, w, nd, true_disparity = 5, 40, 8, 3
+    means = np.full((h, w, nd), 5.0, np.float32)
+    means[:, :, true_disparity] = 1.0
+    support = rng.uniform(1.0, 500.0, (h, w)).astype(np.float32)
+    aggregated = means * support[:, :, None]
+    found = right_disparity_from_left(aggregated, 0, support)
+    inner = found[:, : w - nd]  # right pixels whose whole diagonal lies inside the image
+    assert np.allclose(inner, true_disparity, atol=0.5)
 
 
 def test_diagonal_right_check_decodes_without_a_right_tree(scene):
