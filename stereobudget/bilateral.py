@@ -229,24 +229,29 @@ def _trilinear_corners(y0, ty, x0, tx, z0, tz, nx, nz, corner_weight, corner_ind
 
 @njit(cache=True, parallel=True)
 def _slice_normalised(guide, grid_val, grid_w, spatial_val, spatial_w, inv_cs, inv_cr,
-                      eps, missing_value, channel_map, out):
-    """out[y, x, i] = slice(grid_val)[i] / slice(grid_w)[channel_map[i]] with a spatial-only fallback."""
+                      eps, missing_value, channel_map, pixel_of_row, out):
+    """out[k, i] = slice(grid_val)[i] / slice(grid_w)[channel_map[i]] at pixel
+    ``pixel_of_row[k]`` (row-major), with a spatial-only fallback; ``out`` is ``(N, D)`` rows,
+    written in order (the pixels may come in any order, e.g. a tree's)."""
     h, w = guide.shape
     gy_n, gx_n, gz_n, k_n = grid_val.shape
-    n_out = out.shape[2]
+    n_out = out.shape[1]
     kw_n = grid_w.shape[3]
     val_rows = grid_val.reshape(gy_n * gx_n * gz_n, k_n)
     w_rows = grid_w.reshape(gy_n * gx_n * gz_n, kw_n)
-    for y in prange(h):
+    row_count = out.shape[0]
+    for chunk in prange((row_count + _CHUNK - 1) // _CHUNK):
         den = np.empty(kw_n, dtype=np.float32)
         corner_index = np.empty(8, dtype=np.int64)
         corner_weight = np.empty(8, dtype=np.float32)
-        y0, ty = _hat(y * inv_cs, gy_n)
-        for x in range(w):
+        for k in range(chunk * _CHUNK, min((chunk + 1) * _CHUNK, row_count)):
+            y = pixel_of_row[k] // w
+            x = pixel_of_row[k] - y * w
+            y0, ty = _hat(y * inv_cs, gy_n)
             x0, tx = _hat(x * inv_cs, gx_n)
             z0, tz = _hat(guide[y, x] * inv_cr, gz_n)
             _trilinear_corners(y0, ty, x0, tx, z0, tz, gx_n, gz_n, corner_weight, corner_index)
-            o = out[y, x]
+            o = out[k]
             _add_corners_from(val_rows, corner_index, corner_weight, 0, n_out, o)
             _add_corners_from(w_rows, corner_index, corner_weight, 0, kw_n, den)
             smallest = den[channel_map[0]]
@@ -269,17 +274,30 @@ def _slice_normalised(guide, grid_val, grid_w, spatial_val, spatial_w, inv_cs, i
     return out
 
 
-def _normalised_slice(guide, grid_val, grid_w, geom, density, missing_value, channel_map):
+def _normalised_slice(guide, grid_val, grid_w, geom, density, missing_value, channel_map, pixel_of_row=None):
+    """Slice into an (H, W, K) volume, or into (N, K) rows when ``pixel_of_row`` is given."""
     h, w = guide.shape
     spatial_val = np.ascontiguousarray(grid_val.sum(axis=2, dtype=np.float32))
     spatial_w = np.ascontiguousarray(grid_w.sum(axis=2, dtype=np.float32))
     # A pixel whose filtered mask weight is this small has, in effect, no sample of its
     # intensity nearby (typical weight is ~ density * cell_s^2).
     eps = np.float32(1e-4 * density * geom.cell_s ** 2)
-    out = np.empty((h, w, grid_val.shape[3]), dtype=np.float32)
-    return _slice_normalised(guide, grid_val, grid_w, spatial_val, spatial_w,
-                             np.float32(1.0 / geom.cell_s), np.float32(1.0 / geom.cell_r),
-                             eps, np.float32(missing_value), channel_map, out)
+    out = np.empty((h * w, grid_val.shape[3]), dtype=np.float32)
+    _slice_normalised(guide, grid_val, grid_w, spatial_val, spatial_w,
+                      np.float32(1.0 / geom.cell_s), np.float32(1.0 / geom.cell_r),
+                      eps, np.float32(missing_value), channel_map, _pixels_of_rows(pixel_of_row, h * w), out)
+    return out if pixel_of_row is not None else out.reshape(h, w, -1)
+
+
+#: Rows per parallel work item of the slice kernels.
+_CHUNK = 512
+
+
+def _pixels_of_rows(pixel_of_row, node_count):
+    """The pixel of each row of an output volume: the given layout, or pixel order."""
+    if pixel_of_row is None:
+        return np.arange(node_count, dtype=np.int64)
+    return np.asarray(pixel_of_row, dtype=np.int64)
 
 
 # --------------------------------------------------------------------------------------
@@ -423,32 +441,35 @@ def _divide_or_fall_back(o, den, band_start, layer_base, spatial_val, spatial_ba
 
 @njit(cache=True, parallel=True)
 def _slice_normalised_split(guide, grid_val, base_w, band_w, spatial_val, spatial_base, spatial_band,
-                            first_band_layer, inv_cs, inv_cr, eps, missing_value, out):
+                            first_band_layer, inv_cs, inv_cr, eps, missing_value, pixel_of_row, out):
     """:func:`_slice_normalised` with layer i's weights from ``band_w`` where the left border
     reaches (``i >= first_band_layer[x0]``) and from base channel ``i % stride`` elsewhere."""
     h, w = guide.shape
     gy_n, gx_n, gz_n, k_n = grid_val.shape
     n_base = base_w.shape[3]
     band_n = band_w.shape[1]
-    n_out = out.shape[2]
+    n_out = out.shape[1]
     val_rows = grid_val.reshape(gy_n * gx_n * gz_n, k_n)
     base_rows = base_w.reshape(gy_n * gx_n * gz_n, n_base)
     band_rows = band_w.reshape(gy_n * band_n * gz_n, k_n)
     layer_base = np.empty(n_out, dtype=np.int64)
     for i in range(n_out):
         layer_base[i] = i % n_base
-    for y in prange(h):
+    row_count = out.shape[0]
+    for chunk in prange((row_count + _CHUNK - 1) // _CHUNK):
         den_base = np.empty(n_base, dtype=np.float32)
         den = np.empty(n_out, dtype=np.float32)
         corner_index = np.empty(8, dtype=np.int64)
         band_index = np.empty(8, dtype=np.int64)
         corner_weight = np.empty(8, dtype=np.float32)
-        y0, ty = _hat(y * inv_cs, gy_n)
-        for x in range(w):
+        for k in range(chunk * _CHUNK, min((chunk + 1) * _CHUNK, row_count)):
+            y = pixel_of_row[k] // w
+            x = pixel_of_row[k] - y * w
+            y0, ty = _hat(y * inv_cs, gy_n)
             x0, tx = _hat(x * inv_cs, gx_n)
             z0, tz = _hat(guide[y, x] * inv_cr, gz_n)
             _trilinear_corners(y0, ty, x0, tx, z0, tz, gx_n, gz_n, corner_weight, corner_index)
-            o = out[y, x]
+            o = out[k]
             _add_corners_from(val_rows, corner_index, corner_weight, 0, n_out, o)
             _add_corners_from(base_rows, corner_index, corner_weight, 0, n_base, den_base)
             start = first_band_layer[x0]
@@ -486,7 +507,7 @@ def _lattice_stride(rows: np.ndarray, cols: np.ndarray, width: int) -> int:
 
 
 def _filled_sparse_dsi_split(left, guide, rows, cols, right_values, right_steps, *, stride, geom, min_disp,
-                             num_disp, truncation, step_spacing, step_weight, step_truncation):
+                             num_disp, truncation, step_spacing, step_weight, step_truncation, pixel_of_row):
     h, w = guide.shape
     gy, gx, gz = geom.shape
     inv_cs, inv_cr = 1.0 / geom.cell_s, 1.0 / geom.cell_r
@@ -525,10 +546,11 @@ def _filled_sparse_dsi_split(left, guide, rows, cols, right_values, right_steps,
     spatial_band = np.ascontiguousarray(band_w.sum(axis=2, dtype=np.float32))
     density = len(rows) / float(h * w)
     eps = np.float32(1e-4 * density * geom.cell_s ** 2)
-    out = np.empty((h, w, num_disp), dtype=np.float32)
-    return _slice_normalised_split(guide, grid_val, base_w, band_w, spatial_val, spatial_base, spatial_band,
-                                   first_band_layer, np.float32(inv_cs), np.float32(inv_cr), eps,
-                                   np.float32(truncation), out)
+    out = np.empty((h * w, num_disp), dtype=np.float32)
+    _slice_normalised_split(guide, grid_val, base_w, band_w, spatial_val, spatial_base, spatial_band,
+                            first_band_layer, np.float32(inv_cs), np.float32(inv_cr), eps,
+                            np.float32(truncation), _pixels_of_rows(pixel_of_row, h * w), out)
+    return out if pixel_of_row is not None else out.reshape(h, w, num_disp)
 
 
 def sparse_joint_bilateral(guide: np.ndarray, rows: np.ndarray, cols: np.ndarray, values: np.ndarray, *,
@@ -576,7 +598,8 @@ def filled_sparse_dsi(left: np.ndarray, guide: np.ndarray, rows: np.ndarray, col
                       sigma_s: float, sigma_r: float, truncation: float,
                       right_steps: np.ndarray | None = None, step_spacing: int = 1,
                       step_weight: float = 0.0, step_truncation: float = 5.0,
-                      cells_per_sigma_s: float = 2.0, cells_per_sigma_r: float = 2.0) -> np.ndarray:
+                      cells_per_sigma_s: float = 2.0, cells_per_sigma_r: float = 2.0,
+                      pixel_of_row: np.ndarray | None = None) -> np.ndarray:
     """The paper's filled sparse DSI: Eq. (2) at the samples, spread by Eq. (3) to every pixel.
 
     Parameters
@@ -602,10 +625,13 @@ def filled_sparse_dsi(left: np.ndarray, guide: np.ndarray, rows: np.ndarray, col
         Column spacing of the steps (the grid stride).
     step_weight, step_truncation : float
         Weight and truncation (gray levels) of the step term.
+    pixel_of_row : ndarray of int (H * W,), optional
+        Row ``k`` of an ``(H * W, num_disp)`` result holds pixel ``pixel_of_row[k]``
+        (row-major), e.g. a tree's depth-first order (:class:`stereobudget.tree.TreeLayout`).
 
     Returns
     -------
-    ndarray, float32 (H, W, num_disp)
+    ndarray, float32 (H, W, num_disp), or (H * W, num_disp) rows with ``pixel_of_row``
         Filled cost volume.
     """
     h, w = guide.shape
@@ -619,7 +645,8 @@ def filled_sparse_dsi(left: np.ndarray, guide: np.ndarray, rows: np.ndarray, col
         return _filled_sparse_dsi_split(left, guide, rows, cols, right_values, right_steps, stride=stride,
                                         geom=geom, min_disp=int(min_disp), num_disp=int(num_disp),
                                         truncation=truncation, step_spacing=step_spacing,
-                                        step_weight=step_weight, step_truncation=step_truncation)
+                                        step_weight=step_weight, step_truncation=step_truncation,
+                                        pixel_of_row=pixel_of_row)
     grid_val = np.zeros(geom.shape + (num_disp,), np.float32)
     grid_w = np.zeros(geom.shape + (num_disp,), np.float32)
     occupied = np.zeros(geom.shape, np.bool_)
@@ -633,4 +660,4 @@ def filled_sparse_dsi(left: np.ndarray, guide: np.ndarray, rows: np.ndarray, col
     grid_w = _blur_grid(grid_w, geom, occupied)
     density = len(rows) / float(h * w)
     return _normalised_slice(guide, grid_val, grid_w, geom, density, truncation,
-                             np.arange(num_disp, dtype=np.int64))
+                             np.arange(num_disp, dtype=np.int64), pixel_of_row)

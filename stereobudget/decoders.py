@@ -233,7 +233,7 @@ def hybrid_weight(stride: float) -> float:
     return 0.7
 
 
-def _sparse_filled_cost(left_f, guide, samples, *, min_disp, num_disp, params):
+def _sparse_filled_cost(left_f, guide, samples, *, min_disp, num_disp, params, layout=None):
     rows, cols = samples.positions()
     values = _sample_values_f32(samples)
     steps = None
@@ -247,7 +247,8 @@ def _sparse_filled_cost(left_f, guide, samples, *, min_disp, num_disp, params):
                              right_steps=steps, step_spacing=samples.pattern.stride_x,
                              step_weight=params.step_weight, step_truncation=params.step_truncation,
                              cells_per_sigma_s=params.grid_cells_per_sigma_s,
-                             cells_per_sigma_r=params.grid_cells_per_sigma_r)
+                             cells_per_sigma_r=params.grid_cells_per_sigma_r,
+                             pixel_of_row=None if layout is None else layout.pixel_of_row)
 
 
 def lowpass_interpolation(samples: SampleSet, *, sigma: float) -> np.ndarray:
@@ -456,9 +457,13 @@ def decode(left: np.ndarray, samples: SampleSet, *, max_disp: int, min_disp: int
                           f"(this one is {samples.pattern.kind})")
     if method == "sparse":
         with timer("jbf_fill"):
-            cost = _sparse_filled_cost(left_f, guide, samples, min_disp=min_disp, num_disp=num_disp, params=params)
+            # The fill writes its volume in the tree's depth-first row order, so the
+            # aggregation walk streams through it (half the time of a pixel-order walk).
+            layout = _tree.tree_layout(tree)
+            cost = _sparse_filled_cost(left_f, guide, samples, min_disp=min_disp, num_disp=num_disp, params=params,
+                                       layout=layout)
         with timer("aggregate"):  # the winners are taken during the aggregation's walk
-            disp = _tree.aggregate_winners(cost, tree, min_disp=int(min_disp), out=cost)
+            disp = _tree.aggregate_rows_winners(cost, layout, min_disp=int(min_disp))
         with timer("median"):
             disp = median_filter_disparity(disp, params.median_size)
     elif method == "hybrid":

@@ -24,44 +24,55 @@ from .winner import subpixel_winner
 
 
 @njit(cache=True, parallel=True)
-def _right_view_cost_into(left_cost, min_disp, out):
+def _right_view_cost_into(left_cost, pixel_of_row, min_disp, out):
+    """Row k of ``out`` = the right-view costs of right pixel ``pixel_of_row[k]`` (y, x):
+    layer i is ``left_cost[y, x + min_disp + i, i]``, border columns outside the image."""
     h, w, nd = left_cost.shape
-    for y in prange(h):
-        for x in range(w):
-            # Layers i with x + min_disp + i inside [0, w) form one run; clamp only outside it,
-            # so the main loop has no branches.
-            lo = min(max(-(x + min_disp), 0), nd)
-            hi = max(min(w - (x + min_disp), nd), lo)
-            o = out[y, x]
-            for i in range(lo):
-                o[i] = left_cost[y, 0, i]
-            base = x + min_disp
-            for i in range(lo, hi):
-                o[i] = left_cost[y, base + i, i]
-            for i in range(hi, nd):
-                o[i] = left_cost[y, w - 1, i]
+    for k in prange(out.shape[0]):
+        y = pixel_of_row[k] // w
+        x = pixel_of_row[k] - y * w
+        # Layers i with x + min_disp + i inside [0, w) form one run; clamp only outside it,
+        # so the main loop has no branches.
+        lo = min(max(-(x + min_disp), 0), nd)
+        hi = max(min(w - (x + min_disp), nd), lo)
+        o = out[k]
+        for i in range(lo):
+            o[i] = left_cost[y, 0, i]
+        base = x + min_disp
+        for i in range(lo, hi):
+            o[i] = left_cost[y, base + i, i]
+        for i in range(hi, nd):
+            o[i] = left_cost[y, w - 1, i]
     return out
 
 
-def right_view_cost(left_cost, min_disp, *, out=None):
+def right_view_cost(left_cost, min_disp, *, out=None, right_layout=None):
     """Cost volume of the right view from the left one: ``C_R(x, d) = C_L(x + d, d)``.
 
     Parameters
     ----------
     left_cost : ndarray, float32 (H, W, D)
     min_disp : int
-    out : ndarray, float32 (H, W, D), optional
-        Buffer to write into (must not be ``left_cost``); a fresh one by default.
+    out : ndarray, float32, optional
+        Buffer to write into (must not be ``left_cost``), with H * W * D values; a fresh
+        one by default.
+    right_layout : stereobudget.tree.TreeLayout, optional
+        Write the result in the right tree's row layout, ready for
+        :func:`stereobudget.tree.aggregate_rows_winners` (the left volume is read in
+        small overlapping windows, so the order of the writes costs little).
 
     Returns
     -------
-    ndarray, float32 (H, W, D)
+    ndarray, float32 (H, W, D), or (H * W, D) rows in ``right_layout``
         Right pixels whose partner ``x + d`` lies outside the left image take the cost of
         the last column (border replication, as for the left view).
     """
+    h, w, nd = left_cost.shape
     if out is None:
-        out = np.empty_like(left_cost)
-    return _right_view_cost_into(left_cost, int(min_disp), out)
+        out = np.empty((h, w, nd), dtype=np.float32)
+    pixels = np.arange(h * w, dtype=np.int64) if right_layout is None else right_layout.pixel_of_row
+    _right_view_cost_into(left_cost, np.asarray(pixels, np.int64), int(min_disp), out.reshape(h * w, nd))
+    return out.reshape(h, w, nd) if right_layout is None else out.reshape(h * w, nd)
 
 
 @njit(cache=True, parallel=True)
@@ -123,26 +134,23 @@ def left_right_stable(disp_left, disp_right, tolerance):
 
 
 @njit(cache=True, parallel=True)
-def _refinement_cost_into(disp, stable, min_disp, out):
-    h, w, num_disp = out.shape
-    for y in prange(h):
-        for x in range(w):
-            row = out[y, x]
-            if stable[y, x]:
-                d = disp[y, x]
-                for i in range(num_disp):
-                    # float32 subtraction: the exact difference rounded once, as in float64.
-                    row[i] = abs(np.float32(min_disp + i) - d)
-            else:
-                for i in range(num_disp):
-                    row[i] = 0.0
+def _refinement_cost_into(disp, stable, min_disp, pixel_of_row, out):
+    """Row k of ``out`` = Yang's refinement cost of pixel ``pixel_of_row[k]``."""
+    num_disp = out.shape[1]
+    disp_flat = disp.reshape(-1)
+    stable_flat = stable.reshape(-1)
+    for k in prange(out.shape[0]):
+        p = pixel_of_row[k]
+        row = out[k]
+        if stable_flat[p]:
+            d = disp_flat[p]
+            for i in range(num_disp):
+                # float32 subtraction: the exact difference rounded once, as in float64.
+                row[i] = abs(np.float32(min_disp + i) - d)
+        else:
+            for i in range(num_disp):
+                row[i] = 0.0
     return out
-
-
-def _refinement_cost(disp, stable, min_disp, num_disp, out=None):
-    if out is None:
-        out = np.empty(disp.shape + (int(num_disp),), dtype=np.float32)
-    return _refinement_cost_into(disp, stable, int(min_disp), out)
 
 
 def nonlocal_refinement(disp: np.ndarray, stable: np.ndarray, tree, *, min_disp: int, num_disp: int,
@@ -155,16 +163,22 @@ def nonlocal_refinement(disp: np.ndarray, stable: np.ndarray, tree, *, min_disp:
     stable : ndarray, bool (H, W)
     tree : stereobudget.tree.MinimumSpanningTree
         Tree of the left image.
-    out : ndarray, float32 (H, W, num_disp), optional
+    out : ndarray, float32, C-contiguous with H * W * num_disp values, optional
         Scratch volume for the refinement cost (a dead cost volume can be recycled:
-        reusing it saves the page faults of a fresh allocation).
+        reusing it saves the page faults of a fresh allocation).  The cost is written in
+        the tree's row layout (:class:`stereobudget.tree.TreeLayout`), which the
+        aggregation walk streams through.
 
     Returns
     -------
     ndarray, float32 (H, W)
     """
-    cost = _refinement_cost(disp.astype(np.float32), stable, int(min_disp), int(num_disp), out)
-    return _tree.aggregate_winners(cost, tree, min_disp=int(min_disp), out=cost)
+    layout = _tree.tree_layout(tree)
+    h, w = disp.shape
+    rows = np.empty((h * w, int(num_disp)), np.float32) if out is None else out.reshape(h * w, int(num_disp))
+    _refinement_cost_into(np.ascontiguousarray(disp, np.float32), np.ascontiguousarray(stable), int(min_disp),
+                          layout.pixel_of_row, rows)
+    return _tree.aggregate_rows_winners(rows, layout, min_disp=int(min_disp))
 
 
 def left_right_refined_disparity(cost, *, left_tree, right_tree, min_disp, params, timer, scratch=None):
@@ -173,7 +187,7 @@ def left_right_refined_disparity(cost, *, left_tree, right_tree, min_disp, param
     Parameters
     ----------
     cost : ndarray, float32 (H, W, D)
-        Unaggregated left-view cost; consumed (aggregated in place).
+        Unaggregated left-view cost; consumed (aggregated in place, then reused).
     left_tree : stereobudget.tree.MinimumSpanningTree
         Tree of the left image.
     right_tree : stereobudget.tree.MinimumSpanningTree or None
@@ -193,15 +207,24 @@ def left_right_refined_disparity(cost, *, left_tree, right_tree, min_disp, param
     disparity : ndarray, float32 (H, W)
     stable : ndarray, bool (H, W)
         Pixels that passed the left-right check.
+
+    Notes
+    -----
+    The right view's volume and the refinement cost are written in their tree's row
+    layout (:class:`stereobudget.tree.TreeLayout`), which their aggregation walks
+    stream through; the left volume comes from the caller in pixel order.
     """
     from .decoders import median_filter_disparity
     num_disp = cost.shape[2]
     with timer("aggregate"):
         # Winners are taken during the aggregation walks (no separate pass over the volumes).
-        cost_r = right_view_cost(cost, int(min_disp), out=scratch) if right_tree is not None else None
+        cost_r = None
+        if right_tree is not None:
+            right_layout = _tree.tree_layout(right_tree)
+            cost_r = right_view_cost(cost, int(min_disp), out=scratch, right_layout=right_layout)
         disp_l = _tree.aggregate_winners(cost, left_tree, min_disp=int(min_disp), out=cost)
         if cost_r is not None:
-            disp_r = _tree.aggregate_winners(cost_r, right_tree, min_disp=int(min_disp), out=cost_r)
+            disp_r = _tree.aggregate_rows_winners(cost_r, right_layout, min_disp=int(min_disp))
     if cost_r is None:
         with timer("wta"):
             h, w = cost.shape[:2]

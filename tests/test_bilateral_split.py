@@ -49,3 +49,16 @@ def test_lattice_detection_rejects_other_layouts(scene):
     assert bilateral._lattice_stride(rows[:-1], cols[:-1], 150) == 0        # a sample missing
     keep = cols < 100
     assert bilateral._lattice_stride(rows[keep], cols[keep], 150) == 0      # stops short of the edge
+
+
+@pytest.mark.parametrize("pattern", [SamplingPattern("grid", 5, 5), SamplingPattern("jitter", 4, 4, seed=3)])
+def test_fill_written_in_any_row_order_holds_the_same_rows(scene, pattern):
+    # The decoders have the fill write its volume in a tree's depth-first order
+    # (``pixel_of_row``); every row must be bit-identical to that pixel's row in pixel order.
+    left, guide, rows, cols, values, _ = _inputs(scene, pattern)
+    kwargs = dict(min_disp=0, num_disp=20, sigma_s=10.0, sigma_r=15.0, truncation=15.0)
+    in_pixel_order = bilateral.filled_sparse_dsi(left, guide, rows, cols, values, **kwargs)
+    pixel_of_row = np.random.default_rng(5).permutation(72 * 150)
+    in_rows = bilateral.filled_sparse_dsi(left, guide, rows, cols, values, pixel_of_row=pixel_of_row, **kwargs)
+    assert in_rows.shape == (72 * 150, 20)
+    np.testing.assert_array_equal(in_rows, in_pixel_order.reshape(-1, 20)[pixel_of_row])

@@ -155,6 +155,17 @@ def test_diagonal_right_disparity_equals_the_right_view_winner(min_disp):
     np.testing.assert_array_equal(right_disparity_from_left(aggregated, min_disp, support), expected)
 
 
+def test_right_view_written_in_a_tree_row_layout_holds_the_same_rows():
+    from stereobudget.refine import right_view_cost
+    from stereobudget.tree import build_tree, tree_layout
+    rng = np.random.default_rng(6)
+    left_cost = rng.random((9, 31, 8), dtype=np.float32)
+    layout = tree_layout(build_tree(rng.integers(0, 255, (9, 31, 3), dtype=np.uint8)))
+    in_pixel_order = right_view_cost(left_cost, -2)
+    in_rows = right_view_cost(left_cost, -2, right_layout=layout)
+    np.testing.assert_array_equal(in_rows, in_pixel_order.reshape(-1, 8)[layout.pixel_of_row])
+
+
 def test_diagonal_search_is_not_drawn_to_pixels_of_small_support():
     # A constant-disparity scene whose aggregated costs carry very different supports per
     # pixel: normalised, every right pixel finds the true disparity; unnormalised it would

@@ -17,7 +17,8 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from stereobudget.errors import ImageReadError, OptionError
-from stereobudget.tree import MinimumSpanningTree, aggregate, aggregate_winners, build_tree
+from stereobudget.tree import (MinimumSpanningTree, aggregate, aggregate_rows_winners, aggregate_winners,
+                               build_tree, tree_layout)
 from stereobudget.winner import winner_take_all
 import stereobudget.tree as tree_module
 
@@ -306,12 +307,16 @@ def test_large_grid_parallel_path_matches_serial():
     np.testing.assert_allclose(in_place, serial, rtol=1e-5)
 
 
+def smooth_tree_and_cost(shape, layers, *, seed):
+    """The tree of a slightly blurred random guide and a random cost volume on its grid."""
+    rng = np.random.default_rng(seed)
+    guide = cv2.GaussianBlur(random_guide(rng, *shape), (0, 0), 1.0)
+    return build_tree(guide), rng.random(shape + (layers,), dtype=np.float32)
+
+
 @pytest.mark.parametrize("shape", [(12, 13), (140, 150)])  # the serial walk and the two-thread split
 def test_winners_taken_during_the_walk_equal_a_separate_winner_pass(shape):
-    rng = np.random.default_rng(21)
-    guide = cv2.GaussianBlur(random_guide(rng, *shape), (0, 0), 1.0)
-    cost = rng.random(shape + (9,), dtype=np.float32)
-    tree = build_tree(guide)
+    tree, cost = smooth_tree_and_cost(shape, 9, seed=21)
     aggregated = aggregate(cost, tree)
     volume = np.empty_like(cost)
     disparity = aggregate_winners(cost, tree, min_disp=-3, out=volume)
@@ -320,6 +325,22 @@ def test_winners_taken_during_the_walk_equal_a_separate_winner_pass(shape):
     assert np.array_equal(volume, aggregated)
     # The root and the top of the second thread's subtree are finalised outside the walk.
     assert np.array_equal(aggregate_winners(cost.copy(), tree, min_disp=-3), disparity)
+
+
+@pytest.mark.parametrize("shape", [(12, 13), (140, 150)])  # the serial walk and the two-thread split
+def test_walk_over_the_depth_first_row_layout_is_bit_identical(shape):
+    tree, cost = smooth_tree_and_cost(shape, 7, seed=22)
+    layout = tree_layout(tree)
+    assert np.array_equal(layout.pixel_of_row, tree.order)
+    assert np.array_equal(layout.row_of_pixel[tree.order], np.arange(tree.size))
+    # Pre-order: every row's parent comes earlier, and the parents are the tree's.
+    assert layout.parent_row[0] == -1 and np.all(layout.parent_row[1:] < np.arange(1, tree.size))
+    assert np.array_equal(tree.order[layout.parent_row[1:]], tree.parent[tree.order[1:]])
+    rows = np.ascontiguousarray(cost.reshape(-1, 7)[tree.order])
+    expected = aggregate_winners(cost.copy(), tree, min_disp=2)
+    assert np.array_equal(aggregate_rows_winners(rows, layout, min_disp=2), expected)
+    # The rows are aggregated in place, each equal to its pixel's aggregate.
+    assert np.array_equal(rows, aggregate(cost, tree).reshape(-1, 7)[tree.order])
 
 
 def test_constant_cost_is_aggregated_proportionally_per_pixel():
