@@ -30,7 +30,10 @@ from dataclasses import dataclass
 import numpy as np
 from numba import get_num_threads, njit, prange
 
-from .cost import pixel_cost, sparse_pair_cost
+from .cost import sparse_pair_cost
+
+#: Rows per parallel work item of the slice kernels.
+_CHUNK = 512
 
 
 @dataclass(frozen=True)
@@ -233,7 +236,7 @@ def _slice_normalised(guide, grid_val, grid_w, spatial_val, spatial_w, inv_cs, i
     """out[k, i] = slice(grid_val)[i] / slice(grid_w)[channel_map[i]] at pixel
     ``pixel_of_row[k]`` (row-major), with a spatial-only fallback; ``out`` is ``(N, D)`` rows,
     written in order (the pixels may come in any order, e.g. a tree's)."""
-    h, w = guide.shape
+    w = guide.shape[1]
     gy_n, gx_n, gz_n, k_n = grid_val.shape
     n_out = out.shape[1]
     kw_n = grid_w.shape[3]
@@ -287,10 +290,6 @@ def _normalised_slice(guide, grid_val, grid_w, geom, density, missing_value, cha
                       np.float32(1.0 / geom.cell_s), np.float32(1.0 / geom.cell_r),
                       eps, np.float32(missing_value), channel_map, _pixels_of_rows(pixel_of_row, h * w), out)
     return out if pixel_of_row is not None else out.reshape(h, w, -1)
-
-
-#: Rows per parallel work item of the slice kernels.
-_CHUNK = 512
 
 
 def _pixels_of_rows(pixel_of_row, node_count):
@@ -444,7 +443,7 @@ def _slice_normalised_split(guide, grid_val, base_w, band_w, spatial_val, spatia
                             first_band_layer, inv_cs, inv_cr, eps, missing_value, pixel_of_row, out):
     """:func:`_slice_normalised` with layer i's weights from ``band_w`` where the left border
     reaches (``i >= first_band_layer[x0]``) and from base channel ``i % stride`` elsewhere."""
-    h, w = guide.shape
+    w = guide.shape[1]
     gy_n, gx_n, gz_n, k_n = grid_val.shape
     n_base = base_w.shape[3]
     band_n = band_w.shape[1]
