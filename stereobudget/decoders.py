@@ -379,6 +379,10 @@ def _resolve_method(left, samples, *, method, params, min_disp, max_disp):
     check_inputs(left, samples, min_disp=min_disp, max_disp=max_disp)
     if _is_full_grid(samples):
         method = "full"
+    elif method == "full":
+        raise OptionError(f"--method full needs every pixel of I2 (a sample file written with --stride 1); "
+                          f"this one holds {samples.pattern.kind} samples at stride "
+                          f"{samples.pattern.stride_x}x{samples.pattern.stride_y}")
     return method, adapt_to_noise(params, left, method=method)
 
 

@@ -96,6 +96,8 @@ def test_mismatched_inputs_are_refused():
         stereobudget.decode(sc.left, samples, max_disp=10, method="magic")
     with pytest.raises(OptionError, match="downsample"):
         stereobudget.decode(sc.left, samples, max_disp=10, method="downsample")
+    with pytest.raises(OptionError, match="stride 1"):  # "full" needs every pixel of I2
+        stereobudget.decode(sc.left, samples, max_disp=10, method="full")
 
 
 def test_winner_take_all_subpixel_parabola():
