@@ -26,6 +26,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import NamedTuple
 
 import numpy as np
 from numba import get_num_threads, njit, prange
@@ -230,65 +231,182 @@ def _trilinear_corners(y0, ty, x0, tx, z0, tz, nx, nz, corner_weight, corner_ind
                 c += 1
 
 
+@njit(cache=True, inline="always")
+def _add_corners_from(rows, corner_index, corner_weight, lo, n, acc):
+    """acc[lo:n] = sum over the 8 corners of weight * row[lo:n], corners added in a fixed order.
+
+    All 8 corner rows in one loop: the sum stays in registers instead of being stored
+    and reloaded once per corner (2x faster than a loop per corner, same rounding).
+    """
+    # Sliced to [lo, n) so the loop index starts at 0: numba's negative-index check on a
+    # computed index would keep LLVM from vectorising the loop.
+    r0 = rows[corner_index[0], lo:n]
+    r1 = rows[corner_index[1], lo:n]
+    r2 = rows[corner_index[2], lo:n]
+    r3 = rows[corner_index[3], lo:n]
+    r4 = rows[corner_index[4], lo:n]
+    r5 = rows[corner_index[5], lo:n]
+    r6 = rows[corner_index[6], lo:n]
+    r7 = rows[corner_index[7], lo:n]
+    out = acc[lo:n]
+    w0, w1, w2, w3 = corner_weight[0], corner_weight[1], corner_weight[2], corner_weight[3]
+    w4, w5, w6, w7 = corner_weight[4], corner_weight[5], corner_weight[6], corner_weight[7]
+    for i in range(out.shape[0]):
+        out[i] = (w0 * r0[i] + w1 * r1[i] + w2 * r2[i] + w3 * r3[i]
+                  + w4 * r4[i] + w5 * r5[i] + w6 * r6[i] + w7 * r7[i])
+
+
+@njit(cache=True, inline="always")
+def _divide_or_fall_back(o, den, band_start, layer_base, spatial_val, spatial_base, spatial_band,
+                         y0, ty, x0, tx, eps, missing_value):
+    """o[i] /= den[i]; layers whose weight is below ``eps`` take the spatial-only fallback.
+
+    Almost every pixel has weight in every layer, so the check is one vectorised count
+    and the division one branch-free loop; the per-layer branch runs only when it must.
+    """
+    n_out = o.shape[0]
+    # A count, not a running minimum: an integer sum vectorises, a float min chain does not.
+    light = 0
+    for i in range(n_out):
+        light += den[i] <= eps
+    if light == 0:
+        for i in range(n_out):
+            o[i] /= den[i]
+        return
+    for i in range(n_out):
+        d = den[i]
+        if d > eps:
+            o[i] /= d
+        else:
+            sv = _bilinear(spatial_val, y0, ty, x0, tx, i)
+            if i >= band_start:
+                sw = _bilinear(spatial_band, y0, ty, x0, tx, i)
+            else:
+                sw = _bilinear(spatial_base, y0, ty, x0, tx, layer_base[i])
+            o[i] = sv / sw if sw > eps else missing_value
+
+
+class SliceGrids(NamedTuple):
+    """Blurred bilateral grids of a normalised fill, ready to be sliced at any pixel.
+
+    Layer ``i`` of the output is ``values`` sliced in channel ``i``, divided by its weight:
+    ``base_weights`` sliced in channel ``layer_base[i]``, except where the left border
+    band holds that layer's own weights (``i >= first_band_layer[x0]``, see the lattice
+    section below).  Where the weight is below ``eps`` a spatial-only fallback
+    (``spatial_*``: the grids summed over intensity) is used, then ``missing_value``.
+
+    Attributes
+    ----------
+    values : ndarray, float32 (GY * GX * GZ, K)
+        Signal grid, one row of K channels per cell.
+    base_weights : ndarray, float32 (GY * GX * GZ, B)
+        Weight (mask) grid channels shared by layers: ``layer_base[i]`` picks layer i's.
+    band_weights : ndarray, float32 (GY * band * GZ, K)
+        Per-layer weights of the cells in the first ``band`` x-cells (may be empty).
+    spatial_values, spatial_base, spatial_band : ndarray, float32 (GY, GX | band, K | B)
+    first_band_layer : ndarray, int64 (GX,)
+        First layer whose weight comes from the band, per x-cell (K: none).
+    layer_base : ndarray, int64 (K,)
+    gy, gx, gz, band : int
+        Grid cells per axis and band width in x-cells.
+    inv_cell_s, inv_cell_r, eps, missing_value : float32
+    """
+
+    values: np.ndarray
+    base_weights: np.ndarray
+    band_weights: np.ndarray
+    spatial_values: np.ndarray
+    spatial_base: np.ndarray
+    spatial_band: np.ndarray
+    first_band_layer: np.ndarray
+    layer_base: np.ndarray
+    gy: int
+    gx: int
+    gz: int
+    band: int
+    inv_cell_s: np.float32
+    inv_cell_r: np.float32
+    eps: np.float32
+    missing_value: np.float32
+
+
+def _slice_grids(grid_val, base_w, band_w, geom, *, density, missing_value, first_band_layer=None):
+    """Pack blurred (GY, GX, GZ, C) grids into :class:`SliceGrids` (``band_w=None``: no band)."""
+    gy, gx, gz, k = grid_val.shape
+    n_base = base_w.shape[3]
+    if band_w is None:
+        band_w = np.zeros((gy, 0, gz, k), np.float32)
+        first_band_layer = np.full(gx, k, np.int64)
+    band = band_w.shape[1]
+    # A pixel whose filtered mask weight is this small has, in effect, no sample of its
+    # intensity nearby (typical weight is ~ density * cell_s^2).
+    eps = np.float32(1e-4 * density * geom.cell_s ** 2)
+    return SliceGrids(
+        values=grid_val.reshape(gy * gx * gz, k), base_weights=base_w.reshape(gy * gx * gz, n_base),
+        band_weights=band_w.reshape(gy * band * gz, k),
+        spatial_values=np.ascontiguousarray(grid_val.sum(axis=2, dtype=np.float32)),
+        spatial_base=np.ascontiguousarray(base_w.sum(axis=2, dtype=np.float32)),
+        spatial_band=np.ascontiguousarray(band_w.sum(axis=2, dtype=np.float32)),
+        first_band_layer=np.asarray(first_band_layer, np.int64),
+        layer_base=np.arange(k, dtype=np.int64) % n_base,
+        gy=gy, gx=gx, gz=gz, band=band,
+        inv_cell_s=np.float32(1.0 / geom.cell_s), inv_cell_r=np.float32(1.0 / geom.cell_r),
+        eps=eps, missing_value=np.float32(missing_value))
+
+
+@njit(cache=True, inline="always")
+def slice_pixel(grids, guide, y, x, o, den_base, den, corner_index, band_index, corner_weight):
+    """Write the normalised fill of pixel (y, x) into ``o`` (K,): Eq. (3) at one pixel.
+
+    ``den_base`` (B,), ``den`` (K,), ``corner_index``/``band_index`` (8,) int64 and
+    ``corner_weight`` (8,) float32 are the caller's scratch, reused from pixel to pixel.
+    """
+    n_out = o.shape[0]
+    y0, ty = _hat(y * grids.inv_cell_s, grids.gy)
+    x0, tx = _hat(x * grids.inv_cell_s, grids.gx)
+    z0, tz = _hat(guide[y, x] * grids.inv_cell_r, grids.gz)
+    _trilinear_corners(y0, ty, x0, tx, z0, tz, grids.gx, grids.gz, corner_weight, corner_index)
+    _add_corners_from(grids.values, corner_index, corner_weight, 0, n_out, o)
+    _add_corners_from(grids.base_weights, corner_index, corner_weight, 0, den_base.shape[0], den_base)
+    start = grids.first_band_layer[x0]
+    for i in range(min(start, n_out)):
+        den[i] = den_base[grids.layer_base[i]]
+    if start < n_out:
+        _trilinear_corners(y0, ty, x0, tx, z0, tz, grids.band, grids.gz, corner_weight, band_index)
+        _add_corners_from(grids.band_weights, band_index, corner_weight, start, n_out, den)
+    _divide_or_fall_back(o, den, start, grids.layer_base, grids.spatial_values, grids.spatial_base,
+                         grids.spatial_band, y0, ty, x0, tx, grids.eps, grids.missing_value)
+
+
 @njit(cache=True, parallel=True)
-def _slice_normalised(guide, grid_val, grid_w, spatial_val, spatial_w, inv_cs, inv_cr,
-                      eps, missing_value, channel_map, pixel_of_row, out):
-    """out[k, i] = slice(grid_val)[i] / slice(grid_w)[channel_map[i]] at pixel
-    ``pixel_of_row[k]`` (row-major), with a spatial-only fallback; ``out`` is ``(N, D)`` rows,
-    written in order (the pixels may come in any order, e.g. a tree's)."""
+def _slice_rows(grids, guide, pixel_of_row, out):
+    """Row k of ``out`` (N, K) = :func:`slice_pixel` at pixel ``pixel_of_row[k]`` (row-major)."""
     w = guide.shape[1]
-    gy_n, gx_n, gz_n, k_n = grid_val.shape
-    n_out = out.shape[1]
-    kw_n = grid_w.shape[3]
-    val_rows = grid_val.reshape(gy_n * gx_n * gz_n, k_n)
-    w_rows = grid_w.reshape(gy_n * gx_n * gz_n, kw_n)
     row_count = out.shape[0]
     for chunk in prange((row_count + _CHUNK - 1) // _CHUNK):
-        den = np.empty(kw_n, dtype=np.float32)
+        den_base = np.empty(grids.base_weights.shape[1], dtype=np.float32)
+        den = np.empty(out.shape[1], dtype=np.float32)
         corner_index = np.empty(8, dtype=np.int64)
+        band_index = np.empty(8, dtype=np.int64)
         corner_weight = np.empty(8, dtype=np.float32)
         for k in range(chunk * _CHUNK, min((chunk + 1) * _CHUNK, row_count)):
             y = pixel_of_row[k] // w
             x = pixel_of_row[k] - y * w
-            y0, ty = _hat(y * inv_cs, gy_n)
-            x0, tx = _hat(x * inv_cs, gx_n)
-            z0, tz = _hat(guide[y, x] * inv_cr, gz_n)
-            _trilinear_corners(y0, ty, x0, tx, z0, tz, gx_n, gz_n, corner_weight, corner_index)
-            o = out[k]
-            _add_corners_from(val_rows, corner_index, corner_weight, 0, n_out, o)
-            _add_corners_from(w_rows, corner_index, corner_weight, 0, kw_n, den)
-            smallest = den[channel_map[0]]
-            for i in range(1, n_out):
-                smallest = min(smallest, den[channel_map[i]])
-            if smallest > eps:  # the usual case: every layer has weight, no per-layer branch
-                for i in range(n_out):
-                    o[i] /= den[channel_map[i]]
-                continue
-            for i in range(n_out):
-                d = den[channel_map[i]]
-                if d > eps:
-                    o[i] /= d
-                else:
-                    # No sample of similar intensity nearby: fall back to a purely spatial
-                    # normalised convolution, then to a constant.
-                    sv = _bilinear(spatial_val, y0, ty, x0, tx, i)
-                    sw = _bilinear(spatial_w, y0, ty, x0, tx, channel_map[i])
-                    o[i] = sv / sw if sw > eps else missing_value
+            slice_pixel(grids, guide, y, x, out[k], den_base, den, corner_index, band_index, corner_weight)
     return out
 
 
-def _normalised_slice(guide, grid_val, grid_w, geom, density, missing_value, channel_map, pixel_of_row=None):
-    """Slice into an (H, W, K) volume, or into (N, K) rows when ``pixel_of_row`` is given."""
+def slice_volume(guide: np.ndarray, grids: SliceGrids, *, pixel_of_row: np.ndarray | None = None) -> np.ndarray:
+    """Slice the grids at every pixel of ``guide``.
+
+    Returns
+    -------
+    ndarray, float32 (H, W, K), or (H * W, K) rows with ``pixel_of_row`` (row ``k`` holds
+    pixel ``pixel_of_row[k]``, row-major)
+    """
     h, w = guide.shape
-    spatial_val = np.ascontiguousarray(grid_val.sum(axis=2, dtype=np.float32))
-    spatial_w = np.ascontiguousarray(grid_w.sum(axis=2, dtype=np.float32))
-    # A pixel whose filtered mask weight is this small has, in effect, no sample of its
-    # intensity nearby (typical weight is ~ density * cell_s^2).
-    eps = np.float32(1e-4 * density * geom.cell_s ** 2)
-    out = np.empty((h * w, grid_val.shape[3]), dtype=np.float32)
-    _slice_normalised(guide, grid_val, grid_w, spatial_val, spatial_w,
-                      np.float32(1.0 / geom.cell_s), np.float32(1.0 / geom.cell_r),
-                      eps, np.float32(missing_value), channel_map, _pixels_of_rows(pixel_of_row, h * w), out)
+    out = np.empty((h * w, grids.values.shape[1]), dtype=np.float32)
+    _slice_rows(grids, guide, _pixels_of_rows(pixel_of_row, h * w), out)
     return out if pixel_of_row is not None else out.reshape(h, w, -1)
 
 
@@ -365,6 +483,58 @@ def _splat_sparse_dsi_split(rows, cols, right_values, right_steps, left, guide, 
                                 band_w[y0 + a, x0 + b, z0 + c, i] += wgt
 
 
+@njit(cache=True, parallel=True)
+def _splat_lattice_dsi(sample_rows, offset_x, stride, n_cols, right_values, right_steps, left, guide, min_disp,
+                       truncation, step_spacing, step_weight, step_truncation, inv_cs, inv_cr,
+                       grid_val, band_w, occupied, blocks):
+    """:func:`_splat_sparse_dsi_split` for a full sample lattice, walking the left pixels of each sample row.
+
+    Left pixel x of sample row ``r`` meets a sample in every layer ``i`` whose column
+    ``x - min_disp - i`` is on the lattice: one layer in ``stride``.  Its hat weights are
+    the same in all of them, so they are computed once per pixel instead of once per
+    (sample, layer), and the 8 corner rows it adds into stay in cache.  For each (cell,
+    layer) the samples still arrive in row-major order, so every sum is bit-for-bit that
+    of the per-sample kernel.  Sample ``k = r * n_cols + j`` is at column
+    ``offset_x + j * stride``; ``min_disp >= 0``.
+    """
+    gy_n, gx_n, gz_n, num_disp = grid_val.shape
+    band_n = band_w.shape[1]
+    w = left.shape[1]
+    blocks = max(1, min(blocks, num_disp))
+    for block in prange(blocks):
+        first = block * num_disp // blocks
+        last = (block + 1) * num_disp // blocks
+        for r in range(sample_rows.shape[0]):
+            y = sample_rows[r]
+            y0, ty = _hat(y * inv_cs, gy_n)
+            for x in range(w):
+                reach = x - min_disp - offset_x         # layer whose sample is the first column
+                i_max = min(last - 1, reach)
+                i_first = first + (reach - first) % stride
+                if i_first > i_max:
+                    continue
+                left_step = np.float32(np.nan)
+                if step_weight > 0 and x + step_spacing < w:
+                    left_step = guide[y, x + step_spacing] - guide[y, x]
+                x0, tx = _hat(x * inv_cs, gx_n)
+                z0, tz = _hat(guide[y, x] * inv_cr, gz_n)
+                for i in range(i_first, i_max + 1, stride):
+                    k = r * n_cols + (reach - i) // stride
+                    cost = sparse_pair_cost(left[y, x], right_values[k], left_step, right_steps[k], truncation,
+                                            step_weight, step_truncation)
+                    for a in range(2):
+                        wy = ty if a else 1 - ty
+                        for b in range(2):
+                            wx = tx if b else 1 - tx
+                            for c in range(2):
+                                wz = tz if c else 1 - tz
+                                wgt = wy * wx * wz
+                                grid_val[y0 + a, x0 + b, z0 + c, i] += wgt * cost
+                                occupied[y0 + a, x0 + b, z0 + c] = True
+                                if x0 + b < band_n:
+                                    band_w[y0 + a, x0 + b, z0 + c, i] += wgt
+
+
 @njit(cache=True)
 def _splat_lattice_weights(sample_rows, first_column, stride, guide, inv_cs, inv_cr, base_w):
     """Base weight channel b: every column ``first_column[b] + m * stride`` of every sample row."""
@@ -385,101 +555,6 @@ def _splat_lattice_weights(sample_rows, first_column, stride, guide, inv_cs, inv
                             wz = tz if c else 1 - tz
                             wgt = wy * wx * wz
                             base_w[y0 + a, x0 + b, z0 + c, ch] += wgt
-
-
-@njit(cache=True, inline="always")
-def _add_corners_from(rows, corner_index, corner_weight, lo, n, acc):
-    """acc[lo:n] = sum over the 8 corners of weight * row[lo:n], corners added in a fixed order.
-
-    All 8 corner rows in one loop: the sum stays in registers instead of being stored
-    and reloaded once per corner (2x faster than a loop per corner, same rounding).
-    """
-    r0 = rows[corner_index[0]]
-    r1 = rows[corner_index[1]]
-    r2 = rows[corner_index[2]]
-    r3 = rows[corner_index[3]]
-    r4 = rows[corner_index[4]]
-    r5 = rows[corner_index[5]]
-    r6 = rows[corner_index[6]]
-    r7 = rows[corner_index[7]]
-    w0, w1, w2, w3 = corner_weight[0], corner_weight[1], corner_weight[2], corner_weight[3]
-    w4, w5, w6, w7 = corner_weight[4], corner_weight[5], corner_weight[6], corner_weight[7]
-    for i in range(lo, n):
-        acc[i] = (w0 * r0[i] + w1 * r1[i] + w2 * r2[i] + w3 * r3[i]
-                  + w4 * r4[i] + w5 * r5[i] + w6 * r6[i] + w7 * r7[i])
-
-
-@njit(cache=True, inline="always")
-def _divide_or_fall_back(o, den, band_start, layer_base, spatial_val, spatial_base, spatial_band,
-                         y0, ty, x0, tx, eps, missing_value):
-    """o[i] /= den[i]; layers whose weight is below ``eps`` take the spatial-only fallback.
-
-    Almost every pixel has weight in every layer, so the check is one vectorised minimum
-    and the division one branch-free loop; the per-layer branch runs only when it must.
-    """
-    n_out = o.shape[0]
-    smallest = den[0]
-    for i in range(1, n_out):
-        smallest = min(smallest, den[i])
-    if smallest > eps:
-        for i in range(n_out):
-            o[i] /= den[i]
-        return
-    for i in range(n_out):
-        d = den[i]
-        if d > eps:
-            o[i] /= d
-        else:
-            sv = _bilinear(spatial_val, y0, ty, x0, tx, i)
-            if i >= band_start:
-                sw = _bilinear(spatial_band, y0, ty, x0, tx, i)
-            else:
-                sw = _bilinear(spatial_base, y0, ty, x0, tx, layer_base[i])
-            o[i] = sv / sw if sw > eps else missing_value
-
-
-@njit(cache=True, parallel=True)
-def _slice_normalised_split(guide, grid_val, base_w, band_w, spatial_val, spatial_base, spatial_band,
-                            first_band_layer, inv_cs, inv_cr, eps, missing_value, pixel_of_row, out):
-    """:func:`_slice_normalised` with layer i's weights from ``band_w`` where the left border
-    reaches (``i >= first_band_layer[x0]``) and from base channel ``i % stride`` elsewhere."""
-    w = guide.shape[1]
-    gy_n, gx_n, gz_n, k_n = grid_val.shape
-    n_base = base_w.shape[3]
-    band_n = band_w.shape[1]
-    n_out = out.shape[1]
-    val_rows = grid_val.reshape(gy_n * gx_n * gz_n, k_n)
-    base_rows = base_w.reshape(gy_n * gx_n * gz_n, n_base)
-    band_rows = band_w.reshape(gy_n * band_n * gz_n, k_n)
-    layer_base = np.empty(n_out, dtype=np.int64)
-    for i in range(n_out):
-        layer_base[i] = i % n_base
-    row_count = out.shape[0]
-    for chunk in prange((row_count + _CHUNK - 1) // _CHUNK):
-        den_base = np.empty(n_base, dtype=np.float32)
-        den = np.empty(n_out, dtype=np.float32)
-        corner_index = np.empty(8, dtype=np.int64)
-        band_index = np.empty(8, dtype=np.int64)
-        corner_weight = np.empty(8, dtype=np.float32)
-        for k in range(chunk * _CHUNK, min((chunk + 1) * _CHUNK, row_count)):
-            y = pixel_of_row[k] // w
-            x = pixel_of_row[k] - y * w
-            y0, ty = _hat(y * inv_cs, gy_n)
-            x0, tx = _hat(x * inv_cs, gx_n)
-            z0, tz = _hat(guide[y, x] * inv_cr, gz_n)
-            _trilinear_corners(y0, ty, x0, tx, z0, tz, gx_n, gz_n, corner_weight, corner_index)
-            o = out[k]
-            _add_corners_from(val_rows, corner_index, corner_weight, 0, n_out, o)
-            _add_corners_from(base_rows, corner_index, corner_weight, 0, n_base, den_base)
-            start = first_band_layer[x0]
-            for i in range(min(start, n_out)):
-                den[i] = den_base[layer_base[i]]
-            if start < n_out:
-                _trilinear_corners(y0, ty, x0, tx, z0, tz, band_n, gz_n, corner_weight, band_index)
-                _add_corners_from(band_rows, band_index, corner_weight, start, n_out, den)
-            _divide_or_fall_back(o, den, start, layer_base, spatial_val, spatial_base, spatial_band,
-                                 y0, ty, x0, tx, eps, missing_value)
-    return out
 
 
 def _lattice_stride(rows: np.ndarray, cols: np.ndarray, width: int) -> int:
@@ -505,8 +580,8 @@ def _lattice_stride(rows: np.ndarray, cols: np.ndarray, width: int) -> int:
     return stride
 
 
-def _filled_sparse_dsi_split(left, guide, rows, cols, right_values, right_steps, *, stride, geom, min_disp,
-                             num_disp, truncation, step_spacing, step_weight, step_truncation, pixel_of_row):
+def _lattice_sparse_dsi_grids(left, guide, rows, cols, right_values, right_steps, *, stride, geom, min_disp,
+                              num_disp, truncation, step_spacing, step_weight, step_truncation):
     h, w = guide.shape
     gy, gx, gz = geom.shape
     inv_cs, inv_cr = 1.0 / geom.cell_s, 1.0 / geom.cell_r
@@ -525,31 +600,24 @@ def _filled_sparse_dsi_split(left, guide, rows, cols, right_values, right_steps,
     grid_val = np.zeros(geom.shape + (num_disp,), np.float32)
     band_w = np.zeros((gy, band_n, gz, num_disp), np.float32)
     occupied = np.zeros(geom.shape, np.bool_)
-    _splat_sparse_dsi_split(np.asarray(rows, np.int64), np.asarray(cols, np.int64),
-                            np.ascontiguousarray(right_values, np.float32),
-                            np.ascontiguousarray(right_steps, np.float32), left, guide, int(min_disp),
-                            np.float32(truncation), int(step_spacing), np.float32(step_weight),
-                            np.float32(step_truncation), inv_cs, inv_cr, grid_val, band_w, occupied,
-                            get_num_threads())
+    sample_rows = np.unique(np.asarray(rows, np.int64))
+    _splat_lattice_dsi(sample_rows, offset_x, int(stride), len(rows) // max(len(sample_rows), 1),
+                       np.ascontiguousarray(right_values, np.float32),
+                       np.ascontiguousarray(right_steps, np.float32), left, guide, int(min_disp),
+                       np.float32(truncation), int(step_spacing), np.float32(step_weight),
+                       np.float32(step_truncation), inv_cs, inv_cr, grid_val, band_w, occupied,
+                       get_num_threads())
     base_w = np.zeros(geom.shape + (min(stride, num_disp),), np.float32)
     first_column = (offset_x + min_disp + np.arange(base_w.shape[3], dtype=np.int64)) % stride
-    _splat_lattice_weights(np.unique(np.asarray(rows, np.int64)), first_column, int(stride), guide,
+    _splat_lattice_weights(sample_rows, first_column, int(stride), guide,
                            inv_cs, inv_cr, base_w)
     band_occupied = np.ascontiguousarray(occupied[:, :band_n])
     grid_val = _blur_grid(grid_val, geom, occupied)
     band_w = _blur_grid(band_w, geom, band_occupied)
     # Base columns left of every layer's first sample are in no layer: no occupancy mask for them.
     base_w = _blur_grid(base_w, geom, np.ones(geom.shape, np.bool_))
-    spatial_val = np.ascontiguousarray(grid_val.sum(axis=2, dtype=np.float32))
-    spatial_base = np.ascontiguousarray(base_w.sum(axis=2, dtype=np.float32))
-    spatial_band = np.ascontiguousarray(band_w.sum(axis=2, dtype=np.float32))
-    density = len(rows) / float(h * w)
-    eps = np.float32(1e-4 * density * geom.cell_s ** 2)
-    out = np.empty((h * w, num_disp), dtype=np.float32)
-    _slice_normalised_split(guide, grid_val, base_w, band_w, spatial_val, spatial_base, spatial_band,
-                            first_band_layer, np.float32(inv_cs), np.float32(inv_cr), eps,
-                            np.float32(truncation), _pixels_of_rows(pixel_of_row, h * w), out)
-    return out if pixel_of_row is not None else out.reshape(h, w, num_disp)
+    return _slice_grids(grid_val, base_w, band_w, geom, density=len(rows) / float(h * w),
+                        missing_value=truncation, first_band_layer=first_band_layer)
 
 
 def sparse_joint_bilateral(guide: np.ndarray, rows: np.ndarray, cols: np.ndarray, values: np.ndarray, *,
@@ -587,9 +655,9 @@ def sparse_joint_bilateral(guide: np.ndarray, rows: np.ndarray, cols: np.ndarray
                   1.0 / geom.cell_s, 1.0 / geom.cell_r, grid_val, grid_w, occupied)
     grid_val = _blur_grid(grid_val, geom, occupied)
     grid_w = _blur_grid(grid_w, geom, occupied)
-    density = len(rows) / float(h * w)
-    return _normalised_slice(guide, grid_val, grid_w, geom, density, missing_value,
-                             np.zeros(k, np.int64))
+    grids = _slice_grids(grid_val, grid_w, None, geom, density=len(rows) / float(h * w),
+                         missing_value=missing_value)
+    return slice_volume(guide, grids)
 
 
 def filled_sparse_dsi(left: np.ndarray, guide: np.ndarray, rows: np.ndarray, cols: np.ndarray,
@@ -633,6 +701,30 @@ def filled_sparse_dsi(left: np.ndarray, guide: np.ndarray, rows: np.ndarray, col
     ndarray, float32 (H, W, num_disp), or (H * W, num_disp) rows with ``pixel_of_row``
         Filled cost volume.
     """
+    grids = sparse_dsi_grids(left, guide, rows, cols, right_values, min_disp=min_disp, num_disp=num_disp,
+                             sigma_s=sigma_s, sigma_r=sigma_r, truncation=truncation, right_steps=right_steps,
+                             step_spacing=step_spacing, step_weight=step_weight, step_truncation=step_truncation,
+                             cells_per_sigma_s=cells_per_sigma_s, cells_per_sigma_r=cells_per_sigma_r)
+    return slice_volume(guide, grids, pixel_of_row=pixel_of_row)
+
+
+def sparse_dsi_grids(left: np.ndarray, guide: np.ndarray, rows: np.ndarray, cols: np.ndarray,
+                     right_values: np.ndarray, *, min_disp: int, num_disp: int,
+                     sigma_s: float, sigma_r: float, truncation: float,
+                     right_steps: np.ndarray | None = None, step_spacing: int = 1,
+                     step_weight: float = 0.0, step_truncation: float = 5.0,
+                     cells_per_sigma_s: float = 2.0, cells_per_sigma_r: float = 2.0) -> SliceGrids:
+    """The splatted and blurred grids of :func:`filled_sparse_dsi`, not yet sliced.
+
+    For callers that slice pixel by pixel inside their own kernel (:func:`slice_pixel`),
+    e.g. Hybrid, which mixes each sliced row with a dense cost before storing it.
+    Parameters as for :func:`filled_sparse_dsi`.
+
+    Returns
+    -------
+    SliceGrids
+        ``K = num_disp`` layers.
+    """
     h, w = guide.shape
     geom = grid_geometry(h, w, float(guide.max(initial=0.0)), sigma_s=sigma_s, sigma_r=sigma_r,
                          cells_per_sigma_s=cells_per_sigma_s, cells_per_sigma_r=cells_per_sigma_r)
@@ -641,11 +733,10 @@ def filled_sparse_dsi(left: np.ndarray, guide: np.ndarray, rows: np.ndarray, col
         step_weight = 0.0
     stride = _lattice_stride(np.asarray(rows, np.int64), np.asarray(cols, np.int64), w) if min_disp >= 0 else 0
     if stride and num_disp > stride:
-        return _filled_sparse_dsi_split(left, guide, rows, cols, right_values, right_steps, stride=stride,
-                                        geom=geom, min_disp=int(min_disp), num_disp=int(num_disp),
-                                        truncation=truncation, step_spacing=step_spacing,
-                                        step_weight=step_weight, step_truncation=step_truncation,
-                                        pixel_of_row=pixel_of_row)
+        return _lattice_sparse_dsi_grids(left, guide, rows, cols, right_values, right_steps, stride=stride,
+                                         geom=geom, min_disp=int(min_disp), num_disp=int(num_disp),
+                                         truncation=truncation, step_spacing=step_spacing,
+                                         step_weight=step_weight, step_truncation=step_truncation)
     grid_val = np.zeros(geom.shape + (num_disp,), np.float32)
     grid_w = np.zeros(geom.shape + (num_disp,), np.float32)
     occupied = np.zeros(geom.shape, np.bool_)
@@ -657,6 +748,4 @@ def filled_sparse_dsi(left: np.ndarray, guide: np.ndarray, rows: np.ndarray, col
                             occupied, get_num_threads())
     grid_val = _blur_grid(grid_val, geom, occupied)
     grid_w = _blur_grid(grid_w, geom, occupied)
-    density = len(rows) / float(h * w)
-    return _normalised_slice(guide, grid_val, grid_w, geom, density, truncation,
-                             np.arange(num_disp, dtype=np.int64), pixel_of_row)
+    return _slice_grids(grid_val, grid_w, None, geom, density=len(rows) / float(h * w), missing_value=truncation)

@@ -80,60 +80,81 @@ def sample_row_steps(lattice_gray: np.ndarray) -> np.ndarray:
     return steps
 
 
-@njit(cache=True, parallel=True)
-def _full_dsi(left, right, left_grad, right_grad, min_disp, num_disp, truncation,
-              grad_truncation, grad_weight, out, mix, keep_weight, dsi_weight):
-    """out = DSI, or with ``mix`` out = keep_weight * out + dsi_weight * DSI (in place)."""
-    h, w, channels = left.shape
+@njit(cache=True, inline="always")
+def reversed_right_row(right, right_grad, y, first_column, use_grad, rev):
+    """Fill ``rev`` (C + 1, span) with row ``y`` of I2 and its gradient, reversed, for :func:`dense_pixel_costs`.
+
+    Column ``k`` holds I2 column ``first_column + span - 1 - k`` clamped to the border
+    (standard practice outside the image), so the layers of a pixel read it forwards
+    without branches and the loops over layers vectorise.
+    """
+    w = right.shape[1]
+    channels = right.shape[2]
+    span = rev.shape[1]
+    for k in range(span):
+        xr = first_column + span - 1 - k
+        if xr < 0:
+            xr = 0
+        elif xr >= w:
+            xr = w - 1
+        for ch in range(channels):
+            rev[ch, k] = right[y, xr, ch]
+        rev[channels, k] = right_grad[y, xr] if use_grad else np.float32(0.0)
+
+
+@njit(cache=True, inline="always")
+def dense_pixel_costs(left, left_grad, y, x, rev, min_disp, first_column, truncation, grad_truncation,
+                      grad_weight, acc):
+    """Eq. (1) for left pixel (y, x) at every layer: ``acc[i]`` = cost against I2 column ``x - min_disp - i``.
+
+    The colour term is the mean absolute channel difference truncated at ``truncation``;
+    with ``grad_weight > 0`` it is mixed with the truncated x-gradient difference,
+    ``(1 - alpha) * colour + alpha * gradient`` (Yang).  float32 throughout: the same sum
+    as :func:`pixel_cost`, channels added in order.  ``rev`` is the row made by
+    :func:`reversed_right_row`.
+    """
+    num_disp = acc.shape[0]
+    channels = left.shape[2]
     inv_channels = np.float32(1.0 / channels)
     colour_weight = np.float32(1.0) - grad_weight
+    span = rev.shape[1]
+    # Layer i reads I2 column x - min_disp - i, i.e. rev index start + i.
+    start = span - 1 - (x - min_disp - first_column)
+    # Slices, not rev[ch, start + i]: numba wraps negative indices, and that check on a
+    # computed index keeps LLVM from vectorising the loops (measured 5x slower).
+    lp = left[y, x, 0]
+    row = rev[0, start:start + num_disp]
+    for i in range(num_disp):
+        acc[i] = abs(lp - row[i])
+    for ch in range(1, channels):
+        lp = left[y, x, ch]
+        row = rev[ch, start:start + num_disp]
+        for i in range(num_disp):
+            acc[i] += abs(lp - row[i])
+    if grad_weight > 0:
+        lg = left_grad[y, x]
+        grad = rev[channels, start:start + num_disp]
+        for i in range(num_disp):
+            g = min(abs(lg - grad[i]), grad_truncation)
+            acc[i] = colour_weight * min(acc[i] * inv_channels, truncation) + grad_weight * g
+    else:
+        for i in range(num_disp):
+            acc[i] = min(acc[i] * inv_channels, truncation)
+
+
+@njit(cache=True, parallel=True)
+def _full_dsi(left, right, left_grad, right_grad, min_disp, num_disp, truncation, grad_truncation, grad_weight,
+              out):
+    h, w, channels = left.shape
     use_grad = grad_weight > 0
-    # Right-image columns any layer can reach: x - min_disp - i for x in [0, w), i in [0, D).
     first_column = -(min_disp + num_disp - 1)
     span = (w - 1 - min_disp) - first_column + 1
     for y in prange(h):
-        # One row of I2 (and its gradient) per channel, reversed and clamped to the border
-        # column (standard practice outside the image), so that the layers of a pixel read
-        # it forwards without branches: the loops over layers vectorise.
         rev = np.empty((channels + 1, span), dtype=np.float32)
-        # Mixing: the sums go to a scratch row, ``out`` still holds the volume mixed into.
-        scratch = np.empty(num_disp if mix else 0, dtype=np.float32)
-        for k in range(span):
-            xr = first_column + span - 1 - k
-            if xr < 0:
-                xr = 0
-            elif xr >= w:
-                xr = w - 1
-            for ch in range(channels):
-                rev[ch, k] = right[y, xr, ch]
-            rev[channels, k] = right_grad[y, xr] if use_grad else np.float32(0.0)
+        reversed_right_row(right, right_grad, y, first_column, use_grad, rev)
         for x in range(w):
-            # Layer i reads I2 column x - min_disp - i, i.e. rev index start + i.
-            start = span - 1 - (x - min_disp - first_column)
-            o = out[y, x]
-            acc = scratch if mix else o
-            # float32 throughout: the same sum as pixel_cost, channels added in order.
-            lp = left[y, x, 0]
-            row = rev[0]
-            for i in range(num_disp):
-                acc[i] = abs(lp - row[start + i])
-            for ch in range(1, channels):
-                lp = left[y, x, ch]
-                row = rev[ch]
-                for i in range(num_disp):
-                    acc[i] += abs(lp - row[start + i])
-            if use_grad:
-                lg = left_grad[y, x]
-                grad = rev[channels]
-                for i in range(num_disp):
-                    g = min(abs(lg - grad[start + i]), grad_truncation)
-                    acc[i] = colour_weight * min(acc[i] * inv_channels, truncation) + grad_weight * g
-            else:
-                for i in range(num_disp):
-                    acc[i] = min(acc[i] * inv_channels, truncation)
-            if mix:
-                for i in range(num_disp):
-                    o[i] = keep_weight * o[i] + dsi_weight * acc[i]
+            dense_pixel_costs(left, left_grad, y, x, rev, min_disp, first_column, truncation, grad_truncation,
+                              grad_weight, out[y, x])
     return out
 
 
@@ -146,8 +167,7 @@ def horizontal_gradient(gray: np.ndarray) -> np.ndarray:
 
 def full_dsi(left: np.ndarray, right: np.ndarray, *, min_disp: int, num_disp: int,
              truncation: float = DEFAULT_TRUNCATION, grad_weight: float = 0.0,
-             grad_truncation: float = 2.0, mix_into: np.ndarray | None = None,
-             mix_weights: tuple[float, float] = (1.0, 1.0)) -> np.ndarray:
+             grad_truncation: float = 2.0) -> np.ndarray:
     """Full disparity-space image, Eq. (1): ``C(x, y, d) = cost(I1(x, y), I2(x - d, y))``.
 
     Parameters
@@ -163,25 +183,17 @@ def full_dsi(left: np.ndarray, right: np.ndarray, *, min_disp: int, num_disp: in
         Yang's non-local method: ``(1 - alpha) * colour + alpha * gradient``.
     grad_truncation : float
         Truncation of the gradient term.
-    mix_into : ndarray, float32 C-contiguous (H, W, num_disp), optional
-        A volume ``V`` to mix the DSI into, in place:
-        ``V = mix_weights[0] * V + mix_weights[1] * DSI`` (Hybrid's weighted mean), with
-        no DSI-sized temporary.
 
     Returns
     -------
     ndarray, float32 (H, W, num_disp)
-        The DSI, or ``mix_into`` after mixing.
+
+    See Also
+    --------
+    stereobudget.volumes.pair_cost_rows : the same costs, with the right view's, in tree layouts.
     """
     h, w, _ = left.shape
-    mix = mix_into is not None
-    if mix:
-        if (mix_into.shape != (h, w, num_disp) or mix_into.dtype != np.float32
-                or not mix_into.flags.c_contiguous):
-            raise ValueError(f"mix_into must be a C-contiguous float32 volume of shape {(h, w, num_disp)}")
-        out = mix_into
-    else:
-        out = np.empty((h, w, num_disp), dtype=np.float32)
+    out = np.empty((h, w, num_disp), dtype=np.float32)
     if grad_weight > 0:
         lg = horizontal_gradient(to_gray(left))
         rg = horizontal_gradient(to_gray(right))
@@ -189,8 +201,7 @@ def full_dsi(left: np.ndarray, right: np.ndarray, *, min_disp: int, num_disp: in
         lg = rg = np.zeros((1, 1), np.float32)
     return _full_dsi(np.ascontiguousarray(left, np.float32), np.ascontiguousarray(right, np.float32),
                      lg, rg, int(min_disp), int(num_disp), np.float32(truncation),
-                     np.float32(grad_truncation), np.float32(grad_weight), out, mix,
-                     np.float32(mix_weights[0]), np.float32(mix_weights[1]))
+                     np.float32(grad_truncation), np.float32(grad_weight), out)
 
 
 def noise_level(image_f32: np.ndarray, *, block: int = 8, percentile: float = 20.0) -> float:

@@ -25,9 +25,9 @@ from dataclasses import dataclass, field, asdict, replace
 
 import numpy as np
 from .container import SampleSet
-from .cost import DEFAULT_TRUNCATION, full_dsi, noise_level, sample_row_steps, to_float_image, to_gray
+from .cost import DEFAULT_TRUNCATION, noise_level, sample_row_steps, to_float_image, to_gray
 from .sampling import grid_shape
-from .bilateral import filled_sparse_dsi
+from .bilateral import filled_sparse_dsi, sparse_dsi_grids
 from .winner import subpixel_winner, winner_take_all  # noqa: F401  (re-exported for callers of decoders)
 from .errors import MismatchError, OptionError
 from . import tree as _tree
@@ -233,7 +233,8 @@ def hybrid_weight(stride: float) -> float:
     return 0.7
 
 
-def _sparse_filled_cost(left_f, guide, samples, *, min_disp, num_disp, params, layout=None):
+def _sparse_fill_arguments(left_f, guide, samples, params):
+    """Positional and keyword arguments of the Sparse fill (Eq. 2 + Eq. 3) for these samples."""
     rows, cols = samples.positions()
     values = _sample_values_f32(samples)
     steps = None
@@ -241,13 +242,16 @@ def _sparse_filled_cost(left_f, guide, samples, *, min_disp, num_disp, params, l
         # Row neighbours of a grid are stride_x pixels apart: their difference is exact data.
         lattice = to_gray(values.reshape(grid_shape(samples.pattern, samples.height, samples.width) + (-1,)))
         steps = sample_row_steps(lattice).ravel()
-    return filled_sparse_dsi(left_f, guide, rows, cols, values, min_disp=min_disp,
-                             num_disp=num_disp, sigma_s=params.sigma_s_per_stride * _stride(samples),
-                             sigma_r=params.sigma_r, truncation=params.truncation,
-                             right_steps=steps, step_spacing=samples.pattern.stride_x,
-                             step_weight=params.step_weight, step_truncation=params.step_truncation,
-                             cells_per_sigma_s=params.grid_cells_per_sigma_s,
-                             cells_per_sigma_r=params.grid_cells_per_sigma_r,
+    return (left_f, guide, rows, cols, values), dict(
+        sigma_s=params.sigma_s_per_stride * _stride(samples), sigma_r=params.sigma_r,
+        truncation=params.truncation, right_steps=steps, step_spacing=samples.pattern.stride_x,
+        step_weight=params.step_weight, step_truncation=params.step_truncation,
+        cells_per_sigma_s=params.grid_cells_per_sigma_s, cells_per_sigma_r=params.grid_cells_per_sigma_r)
+
+
+def _sparse_filled_cost(left_f, guide, samples, *, min_disp, num_disp, params, layout=None):
+    args, kwargs = _sparse_fill_arguments(left_f, guide, samples, params)
+    return filled_sparse_dsi(*args, min_disp=min_disp, num_disp=num_disp, **kwargs,
                              pixel_of_row=None if layout is None else layout.pixel_of_row)
 
 
@@ -288,29 +292,37 @@ def gaussian_lowpass(image_f32: np.ndarray, *, sigma: float) -> np.ndarray:
 
 
 def _decode_hybrid(left_f, guide, samples, tree, *, min_disp, num_disp, params, timer):
-    from .refine import left_right_refined_disparity
+    from .refine import left_right_refined_rows
+    from .volumes import pair_cost_rows
     stride = _stride(samples)
     weight = params.hybrid_sparse_weight if params.hybrid_sparse_weight is not None else hybrid_weight(stride)
     with timer("jbf_fill"):
-        cost = _sparse_filled_cost(left_f, guide, samples, min_disp=min_disp, num_disp=num_disp, params=params)
+        # Splat and blur only: the grids are sliced pixel by pixel in the cost kernel below.
+        args, kwargs = _sparse_fill_arguments(left_f, guide, samples, params)
+        grids = sparse_dsi_grids(*args, min_disp=min_disp, num_disp=num_disp, **kwargs)
     with timer("interpolate"):
         sigma = params.lowpass_per_stride * stride
         right_lp = lowpass_interpolation(samples, sigma=sigma)
         left_lp = gaussian_lowpass(left_f, sigma=sigma)
+    right_layout = None
+    with timer("tree"):
+        left_layout = _tree.tree_layout(tree)
+        if params.right_check == "tree":
+            right_layout = _tree.tree_layout(_tree.build_tree(right_lp, sigma=params.tree_sigma,
+                                                              median_size=params.tree_median))
     with timer("cost"):
-        # Both DSIs are brought to [0, 1] by their largest possible value before mixing;
-        # the dense DSI is mixed into the Sparse one as it is computed (no second volume).
+        # The fill and the dense DSI of the low-passed pair, both brought to [0, 1] by their
+        # largest possible value and mixed per pixel; the right view's volume is gathered
+        # from the same rows (volumes.pair_cost_rows).
         dense_max = (1 - params.grad_weight) * params.full_truncation + params.grad_weight * params.grad_truncation
-        cost = full_dsi(left_lp, right_lp, min_disp=min_disp, num_disp=num_disp,
-                        truncation=params.full_truncation, grad_weight=params.grad_weight,
-                        grad_truncation=params.grad_truncation, mix_into=cost,
-                        mix_weights=(weight / params.truncation, (1.0 - weight) / dense_max))
-    right_tree = None
-    if params.right_check == "tree":
-        with timer("tree"):
-            right_tree = _tree.build_tree(right_lp, sigma=params.tree_sigma, median_size=params.tree_median)
-    disp, _ = left_right_refined_disparity(cost, left_tree=tree, right_tree=right_tree, min_disp=min_disp,
-                                           params=params, timer=timer)
+        left_rows, right_rows = pair_cost_rows(
+            left_lp, right_lp, min_disp=min_disp, num_disp=num_disp, truncation=params.full_truncation,
+            grad_weight=params.grad_weight, grad_truncation=params.grad_truncation, left_layout=left_layout,
+            right_layout=right_layout, grids=grids, guide=guide,
+            mix_weights=(weight / params.truncation, (1.0 - weight) / dense_max))
+    del grids
+    disp, _ = left_right_refined_rows(left_rows, right_rows, left_layout=left_layout, right_layout=right_layout,
+                                      left_tree=tree, min_disp=min_disp, params=params, timer=timer)
     return disp
 
 

@@ -147,25 +147,19 @@ def test_sample_row_steps_are_exact_differences():
 
 
 @pytest.mark.parametrize("min_disp", [0, -3, 4])
-def test_diagonal_right_disparity_equals_the_right_view_winner(min_disp):
-    from stereobudget.refine import right_disparity_from_left, right_view_cost
+def test_diagonal_right_disparity_equals_the_right_view_winner(min_disp, right_view_reference):
+    from stereobudget.refine import right_disparity_from_left
+    from stereobudget.tree import build_tree, tree_layout
     rng = np.random.default_rng(3)
     aggregated = rng.random((7, 23, 9), dtype=np.float32)
     support = rng.uniform(1.0, 300.0, (7, 23)).astype(np.float32)
     # The diagonal search compares the support-normalised costs (weighted means) of left pixels.
-    expected = winner_take_all(right_view_cost(aggregated / support[:, :, None], min_disp), min_disp)
+    expected = winner_take_all(right_view_reference(aggregated / support[:, :, None], min_disp), min_disp)
     np.testing.assert_array_equal(right_disparity_from_left(aggregated, min_disp, support), expected)
-
-
-def test_right_view_written_in_a_tree_row_layout_holds_the_same_rows():
-    from stereobudget.refine import right_view_cost
-    from stereobudget.tree import build_tree, tree_layout
-    rng = np.random.default_rng(6)
-    left_cost = rng.random((9, 31, 8), dtype=np.float32)
-    layout = tree_layout(build_tree(rng.integers(0, 255, (9, 31, 3), dtype=np.uint8)))
-    in_pixel_order = right_view_cost(left_cost, -2)
-    in_rows = right_view_cost(left_cost, -2, right_layout=layout)
-    np.testing.assert_array_equal(in_rows, in_pixel_order.reshape(-1, 8)[layout.pixel_of_row])
+    # The same from the volume in a tree's row layout.
+    layout = tree_layout(build_tree(rng.integers(0, 255, (7, 23, 3), dtype=np.uint8)))
+    rows = np.ascontiguousarray(aggregated.reshape(-1, 9)[layout.pixel_of_row])
+    np.testing.assert_array_equal(right_disparity_from_left(rows, min_disp, support, layout=layout), expected)
 
 
 def test_diagonal_search_is_not_drawn_to_pixels_of_small_support():

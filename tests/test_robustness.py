@@ -522,8 +522,9 @@ def test_decode_refuses_before_allocating(monkeypatch):
 
     def no_volumes(*args, **kwargs):
         raise AssertionError("nothing may be allocated after the memory check failed")
-    from stereobudget import tree
-    for module, name in ((tree, "build_tree"), (decoders, "full_dsi"), (decoders, "filled_sparse_dsi")):
+    from stereobudget import tree, volumes
+    for module, name in ((tree, "build_tree"), (volumes, "pair_cost_rows"), (decoders, "filled_sparse_dsi"),
+                         (decoders, "sparse_dsi_grids")):
         monkeypatch.setattr(module, name, no_volumes)
     with pytest.raises(MemoryLimitError) as info:
         decoders.decode(left, samples, max_disp=5, max_memory=need - 1)
