@@ -291,7 +291,7 @@ def gaussian_lowpass(image_f32: np.ndarray, *, sigma: float) -> np.ndarray:
     return out.reshape(image_f32.shape)
 
 
-def _decode_hybrid(left_f, guide, samples, tree, *, min_disp, num_disp, params, timer):
+def _decode_hybrid(left_f, guide, samples, tree_guide, *, min_disp, num_disp, params, timer):
     from .refine import left_right_refined_rows
     from .volumes import pair_cost_rows
     stride = _stride(samples)
@@ -304,12 +304,12 @@ def _decode_hybrid(left_f, guide, samples, tree, *, min_disp, num_disp, params, 
         sigma = params.lowpass_per_stride * stride
         right_lp = lowpass_interpolation(samples, sigma=sigma)
         left_lp = gaussian_lowpass(left_f, sigma=sigma)
-    right_layout = None
     with timer("tree"):
-        left_layout = _tree.tree_layout(tree)
-        if params.right_check == "tree":
-            right_layout = _tree.tree_layout(_tree.build_tree(right_lp, sigma=params.tree_sigma,
-                                                              median_size=params.tree_median))
+        trees = _tree.build_trees([tree_guide, right_lp] if params.right_check == "tree" else [tree_guide],
+                                  sigma=params.tree_sigma, median_size=params.tree_median)
+    tree = trees[0]
+    left_layout = _tree.tree_layout(tree)
+    right_layout = _tree.tree_layout(trees[1]) if len(trees) > 1 else None
     with timer("cost"):
         # The fill and the dense DSI of the low-passed pair, both brought to [0, 1] by their
         # largest possible value and mixed per pixel; the right view's volume is gathered
@@ -326,7 +326,7 @@ def _decode_hybrid(left_f, guide, samples, tree, *, min_disp, num_disp, params, 
     return disp
 
 
-def _decode_downsample(left_f, samples, tree, *, min_disp, num_disp, params, timer):
+def _decode_downsample(left_f, samples, tree_guide, *, min_disp, num_disp, params, timer):
     from .refine import full_pair_disparity
     p = samples.pattern
     h, w = samples.height, samples.width
@@ -336,7 +336,7 @@ def _decode_downsample(left_f, samples, tree, *, min_disp, num_disp, params, tim
         right_up = upsample_block_means(low, p.stride_x, p.stride_y, h, w)
         left_up = block_lowpass(left_f, p.stride_x, p.stride_y)
     # From here on the upsampled pair is matched like any full pair (the tree stays I1's own).
-    return full_pair_disparity(left_up, right_up, tree=tree, min_disp=min_disp, num_disp=num_disp,
+    return full_pair_disparity(left_up, right_up, tree_guide=tree_guide, min_disp=min_disp, num_disp=num_disp,
                                params=params, timer=timer)
 
 
@@ -459,11 +459,10 @@ def decode(left: np.ndarray, samples: SampleSet, *, max_disp: int, min_disp: int
     with timer("prepare"):
         left_f = to_float_image(left)
         guide = to_gray(left_f)
-    with timer("tree"):
-        # An 8-bit I1 gives the same tree as its float copy, by a counting sort over 256
-        # keys instead of 65536 (~30 % faster).
-        tree = _tree.build_tree(left if left.dtype == np.uint8 else left_f, sigma=params.tree_sigma,
-                                median_size=params.tree_median)
+    # I1's tree is built by each method, with the right image's when it has one (concurrently).
+    # An 8-bit I1 gives the same tree as its float copy, by a counting sort over 256 keys
+    # instead of 65536 (~30 % faster).
+    tree_guide = left if left.dtype == np.uint8 else left_f
     if samples.pattern.kind == "downsample" and method not in ("downsample",):
         if method != "hybrid":
             raise OptionError(f"a downsample sample file can only be decoded with --method downsample, not {method}")
@@ -472,6 +471,8 @@ def decode(left: np.ndarray, samples: SampleSet, *, max_disp: int, min_disp: int
         raise OptionError(f"--method downsample needs a sample file written with --pattern downsample "
                           f"(this one is {samples.pattern.kind})")
     if method == "sparse":
+        with timer("tree"):
+            tree, = _tree.build_trees([tree_guide], sigma=params.tree_sigma, median_size=params.tree_median)
         with timer("jbf_fill"):
             # The fill writes its volume in the tree's depth-first row order, so the
             # aggregation walk streams through it (half the time of a pixel-order walk).
@@ -483,16 +484,16 @@ def decode(left: np.ndarray, samples: SampleSet, *, max_disp: int, min_disp: int
         with timer("median"):
             disp = median_filter_disparity(disp, params.median_size)
     elif method == "hybrid":
-        disp = _decode_hybrid(left_f, guide, samples, tree, min_disp=min_disp, num_disp=num_disp,
+        disp = _decode_hybrid(left_f, guide, samples, tree_guide, min_disp=min_disp, num_disp=num_disp,
                               params=params, timer=timer)
     elif method == "downsample":
-        disp = _decode_downsample(left_f, samples, tree, min_disp=min_disp, num_disp=num_disp,
+        disp = _decode_downsample(left_f, samples, tree_guide, min_disp=min_disp, num_disp=num_disp,
                                   params=params, timer=timer)
     else:
         from .refine import full_pair_disparity
         with timer("prepare"):
             right_f = _sample_values_f32(samples).reshape(samples.height, samples.width, samples.channels)
-        disp = full_pair_disparity(left_f, right_f, tree=tree, min_disp=min_disp, num_disp=num_disp,
+        disp = full_pair_disparity(left_f, right_f, tree_guide=tree_guide, min_disp=min_disp, num_disp=num_disp,
                                    params=params, timer=timer)
     return DecodeResult(disparity=disp, method=method, min_disp=int(min_disp), max_disp=int(max_disp),
                         timings=timer.timings, params=params)

@@ -188,23 +188,24 @@ def left_right_refined_rows(left_rows, right_rows, *, left_layout, right_layout,
     return disp, stable
 
 
-def full_pair_disparity(left_f, right_f, *, tree, min_disp, num_disp, params, timer):
+def full_pair_disparity(left_f, right_f, *, tree_guide, min_disp, num_disp, params, timer):
     """Standard full-pair stereo with Yang's non-local method (the "100 % of I2" reference).
 
-    ``left_f``/``right_f`` are float32 (H, W, C) images in 8-bit units.
+    ``left_f``/``right_f`` are float32 (H, W, C) images in 8-bit units; the left tree is
+    built on ``tree_guide`` (I1 itself, also when ``left_f`` is a low-passed I1), the right
+    tree on ``right_f``.
     """
     from .volumes import pair_cost_rows
-    right_layout = None
-    if params.right_check == "tree":
-        with timer("tree"):
-            right_layout = _tree.tree_layout(_tree.build_tree(right_f, sigma=params.tree_sigma,
-                                                              median_size=params.tree_median))
+    with timer("tree"):
+        trees = _tree.build_trees([tree_guide, right_f] if params.right_check == "tree" else [tree_guide],
+                                  sigma=params.tree_sigma, median_size=params.tree_median)
+    left_layout = _tree.tree_layout(trees[0])
+    right_layout = _tree.tree_layout(trees[1]) if len(trees) > 1 else None
     with timer("cost"):
-        left_layout = _tree.tree_layout(tree)
         left_rows, right_rows = pair_cost_rows(left_f, right_f, min_disp=min_disp, num_disp=num_disp,
                                                truncation=params.full_truncation, grad_weight=params.grad_weight,
                                                grad_truncation=params.grad_truncation, left_layout=left_layout,
                                                right_layout=right_layout)
     disp, _ = left_right_refined_rows(left_rows, right_rows, left_layout=left_layout, right_layout=right_layout,
-                                      left_tree=tree, min_disp=min_disp, params=params, timer=timer)
+                                      left_tree=trees[0], min_disp=min_disp, params=params, timer=timer)
     return disp

@@ -21,7 +21,7 @@ float32 ``(H, W, D)`` with the disparity axis contiguous.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import cv2
 import numba
@@ -31,8 +31,8 @@ from numba import njit, prange
 from .errors import ImageReadError, OptionError
 from .winner import subpixel_winner
 
-__all__ = ["MinimumSpanningTree", "TreeLayout", "build_tree", "tree_layout", "aggregate", "aggregate_winners",
-           "aggregate_rows_winners"]
+__all__ = ["MinimumSpanningTree", "TreeLayout", "build_tree", "build_trees", "tree_layout", "aggregate",
+           "aggregate_winners", "aggregate_rows_winners"]
 
 # Scale of a uint16 difference to 8-bit units: 65535 / 257 == 255.
 _UINT16_TO_8BIT = 1.0 / 257.0
@@ -65,6 +65,8 @@ class MinimumSpanningTree:
     weight: np.ndarray
     height: int
     width: int
+    #: The tree's :class:`TreeLayout`, made on first use by :func:`tree_layout`.
+    _layout: list = field(default_factory=list, init=False, repr=False, compare=False)
 
     @property
     def size(self) -> int:
@@ -156,7 +158,7 @@ def _median_filtered(guide: np.ndarray, median_size: int) -> np.ndarray:
 # numba kernels
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _edge_keys(image, keys):
     """Max absolute channel difference of each grid edge, in the guide's own units.
 
@@ -187,7 +189,7 @@ def _edge_keys(image, keys):
                 keys[2 * p + 1] = 0
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _counting_sorted_edges(keys, height, width, key_count):
     """Grid edge ids sorted by integer key; stable, so ties keep edge-id order."""
     counts = np.zeros(key_count + 1, dtype=np.int64)
@@ -214,7 +216,7 @@ def _counting_sorted_edges(keys, height, width, key_count):
     return sorted_edges
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _find_root(link, node):
     # Path halving keeps the trees flat without recursion.
     while link[node] != node:
@@ -223,7 +225,7 @@ def _find_root(link, node):
     return node
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _kruskal_tree_bits(sorted_edges, height, width):
     """Kruskal on pre-sorted grid edges; returns per-node bits of the kept tree edges.
 
@@ -262,7 +264,7 @@ def _kruskal_tree_bits(sorted_edges, height, width):
     return bits
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _depth_first(bits, keys, height, width, root):
     """Root the tree: depth-first pre-order, parents and the key of each node's parent edge.
 
@@ -619,7 +621,7 @@ def _walk(cost, order, parent, weight, out, winners, min_disp):
         _aggregate_two_threads(cost, order, parent, weight, out, winners, min_disp)
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _layout_arrays(order, parent, weight):
     node_count = order.shape[0]
     row_of_pixel = np.empty(node_count, dtype=np.int64)
@@ -637,10 +639,51 @@ def _layout_arrays(order, parent, weight):
 
 
 def tree_layout(tree: MinimumSpanningTree) -> TreeLayout:
-    """The depth-first row layout of ``tree`` (see :class:`TreeLayout`); one O(N) pass."""
-    row_of_pixel, rows, parent_row, weight_row = _layout_arrays(tree.order, tree.parent, tree.weight)
-    return TreeLayout(pixel_of_row=tree.order, row_of_pixel=row_of_pixel, rows=rows, parent_row=parent_row,
-                      weight_row=weight_row, height=tree.height, width=tree.width)
+    """The depth-first row layout of ``tree`` (see :class:`TreeLayout`).
+
+    One O(N) pass on first use; the layout is kept with the tree, so the cost volume's
+    producer and the refinement share it.
+    """
+    if not tree._layout:
+        row_of_pixel, rows, parent_row, weight_row = _layout_arrays(tree.order, tree.parent, tree.weight)
+        tree._layout.append(TreeLayout(pixel_of_row=tree.order, row_of_pixel=row_of_pixel, rows=rows,
+                                       parent_row=parent_row, weight_row=weight_row, height=tree.height,
+                                       width=tree.width))
+    return tree._layout[0]
+
+
+def build_trees(guides, *, sigma: float = 0.1 * 255, median_size: int = 3) -> list:
+    """:func:`build_tree` for several guides at once, each with its :func:`tree_layout` made.
+
+    The tree kernels are serial and release the GIL, so with two or more numba threads the
+    guides are built concurrently, one per thread (a decode that checks the left view
+    against the right builds both trees in the time of one).
+
+    Parameters
+    ----------
+    guides : sequence of numpy.ndarray
+        Guides as for :func:`build_tree`.
+    sigma, median_size : keyword-only
+        As for :func:`build_tree`.
+
+    Returns
+    -------
+    list of MinimumSpanningTree
+        In the order of ``guides``.
+    """
+    def build(guide):
+        tree = build_tree(guide, sigma=sigma, median_size=median_size)
+        tree_layout(tree)
+        return tree
+
+    guides = list(guides)
+    if len(guides) < 2 or numba.get_num_threads() < 2:
+        return [build(g) for g in guides]
+    from concurrent.futures import ThreadPoolExecutor
+    with ThreadPoolExecutor(max_workers=len(guides) - 1) as pool:
+        others = [pool.submit(build, g) for g in guides[1:]]
+        first = build(guides[0])
+        return [first] + [f.result() for f in others]
 
 
 def aggregate_rows_winners(volume: np.ndarray, layout: TreeLayout, *, min_disp: int) -> np.ndarray:

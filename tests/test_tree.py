@@ -17,7 +17,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from stereobudget.errors import ImageReadError, OptionError
-from stereobudget.tree import (MinimumSpanningTree, aggregate, aggregate_rows_winners, aggregate_winners,
+from stereobudget.tree import (MinimumSpanningTree, aggregate, aggregate_rows_winners, aggregate_winners, build_trees,
                                build_tree, tree_layout)
 from stereobudget.winner import winner_take_all
 import stereobudget.tree as tree_module
@@ -425,3 +425,22 @@ def test_cost_shape_must_match_tree():
         aggregate(np.zeros((5, 4, 3), np.float32), tree)
     with pytest.raises(ValueError):
         aggregate(np.zeros((4, 5, 3), np.float32), tree, out=np.zeros((4, 5, 3), np.float64))
+
+
+def test_build_trees_matches_build_tree_on_each_guide_and_keeps_the_layouts():
+    import numba
+    rng = np.random.default_rng(12)
+    guides = [rng.integers(0, 256, (40, 70, 3), dtype=np.uint8), rng.uniform(0, 255, (40, 70, 3)).astype(np.float32)]
+    for threads in (1, min(2, numba.config.NUMBA_NUM_THREADS)):
+        numba.set_num_threads(threads)
+        try:
+            trees = build_trees(guides, sigma=20.0, median_size=3)
+        finally:
+            numba.set_num_threads(numba.config.NUMBA_NUM_THREADS)
+        for tree, guide in zip(trees, guides):
+            alone = build_tree(guide, sigma=20.0, median_size=3)
+            for name in ("order", "parent", "weight"):
+                np.testing.assert_array_equal(getattr(tree, name), getattr(alone, name))
+            # The layout was made with the tree and is reused, not rebuilt.
+            assert tree_layout(tree) is tree_layout(tree)
+            np.testing.assert_array_equal(tree_layout(tree).row_of_pixel, tree_layout(alone).row_of_pixel)
