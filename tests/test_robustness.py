@@ -694,6 +694,30 @@ def test_ctrl_c_while_the_command_imports_exits_130_without_traceback(command, m
     assert capsys.readouterr().err == f"sb-{command}: interrupted\n"
 
 
+def test_entry_point_called_in_process_exits_normally(monkeypatch):
+    # Only the console script itself skips the interpreter's teardown (os._exit); called
+    # from Python (here: under pytest) the entry point must raise SystemExit as usual.
+    import importlib
+    import types
+    entry = importlib.import_module("stereobudget.cli._entry")
+    monkeypatch.setattr(entry.importlib, "import_module", lambda name: types.SimpleNamespace(main=lambda: 3))
+    with pytest.raises(SystemExit) as exit_info:
+        entry.decode()
+    assert exit_info.value.code == 3
+
+
+def test_console_script_exit_keeps_status_and_flushes_logging(image_cases):
+    # The fast exit still runs the exit handlers and flushes: the -v summary line arrives,
+    # and error statuses are unchanged.
+    d = image_cases
+    ok = subprocess.run([SB_DECODE, str(d / "left.png"), str(d / "s8.sbs"), "--max-disp", "5", "-v",
+                         "--disparity", str(d / "fast_exit.pfm")], capture_output=True, text=True)
+    assert ok.returncode == 0 and "fast_exit.pfm" in ok.stderr and (d / "fast_exit.pfm").exists()
+    again = subprocess.run([SB_DECODE, str(d / "left.png"), str(d / "s8.sbs"), "--max-disp", "5",
+                            "--disparity", str(d / "fast_exit.pfm")], capture_output=True, text=True)
+    assert again.returncode == 12 and again.stderr.count("\n") == 1
+
+
 def test_console_scripts_enter_through_the_interrupt_safe_entry_point():
     text = (BIN / "sb-decode").read_text() + (BIN / "sb-encode").read_text()
     assert text.count("stereobudget.cli._entry") == 2
