@@ -25,11 +25,23 @@ from __future__ import annotations
 import numpy as np
 from numba import njit, prange
 
+from ._prefetch import LINE_FLOATS, prefetch_for_write
 from .bilateral import SliceGrids, slice_pixel
 from .cost import dense_pixel_costs, horizontal_gradient, reversed_right_row, to_gray
 
 #: Image rows per parallel work item (each item allocates its own W x D row buffer).
 _ROWS_PER_ITEM = 4
+#: Pixels ahead whose destination rows are prefetched before they are written.
+_PREFETCH_AHEAD = 8
+
+
+@njit(cache=True, inline="always")
+def _prefetch_row(flat, row, num_disp):
+    """Prefetch every cache line of row ``row`` of an (N, num_disp) volume seen as ``flat``."""
+    start = row * num_disp
+    for offset in range(0, num_disp, LINE_FLOATS):
+        prefetch_for_write(flat, start + offset)
+    prefetch_for_write(flat, start + num_disp - 1)
 
 
 @njit(cache=True, inline="always")
@@ -67,6 +79,8 @@ def _pair_rows(left, right, left_grad, right_grad, min_disp, truncation, grad_tr
     num_disp = left_rows.shape[1]
     use_grad = grad_weight > 0
     with_right = right_rows.shape[0] > 0
+    left_flat = left_rows.reshape(left_rows.size)
+    right_flat = right_rows.reshape(right_rows.size)
     first_column = -(min_disp + num_disp - 1)
     span = (w - 1 - min_disp) - first_column + 1
     for item in prange((h + _ROWS_PER_ITEM - 1) // _ROWS_PER_ITEM):
@@ -81,6 +95,8 @@ def _pair_rows(left, right, left_grad, right_grad, min_disp, truncation, grad_tr
         for y in range(item * _ROWS_PER_ITEM, min((item + 1) * _ROWS_PER_ITEM, h)):
             reversed_right_row(right, right_grad, y, first_column, use_grad, rev)
             for x in range(w):
+                if x + _PREFETCH_AHEAD < w:
+                    _prefetch_row(left_flat, left_row_of_pixel[y * w + x + _PREFETCH_AHEAD], num_disp)
                 o = buffer[x]
                 if use_grids:
                     slice_pixel(grids, guide, y, x, o, den_base, den, corner_index, band_index, corner_weight)
@@ -96,6 +112,8 @@ def _pair_rows(left, right, left_grad, right_grad, min_disp, truncation, grad_tr
                     target[i] = o[i]
             if with_right:
                 for xr in range(w):
+                    if xr + _PREFETCH_AHEAD < w:
+                        _prefetch_row(right_flat, right_row_of_pixel[y * w + xr + _PREFETCH_AHEAD], num_disp)
                     _gather_right_row(buffer, xr, min_disp, right_rows[right_row_of_pixel[y * w + xr]])
 
 
