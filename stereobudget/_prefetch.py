@@ -12,7 +12,7 @@ every numba this package supports accepts (LLVM 15 and later upgrade it to ``.p0
 from __future__ import annotations
 
 from llvmlite import ir
-from numba import types
+from numba import njit, types
 from numba.core import cgutils
 from numba.extending import intrinsic
 
@@ -42,3 +42,12 @@ def prefetch_for_write(typingctx, array, index):
         return context.get_dummy_value()
 
     return sig, codegen
+
+
+@njit(cache=True, inline="always")
+def prefetch_row(flat, row, row_length):
+    """Prefetch (for writing) every cache line of row ``row`` of an (N, row_length) array seen as ``flat``."""
+    start = row * row_length
+    for offset in range(0, row_length, LINE_FLOATS):
+        prefetch_for_write(flat, start + offset)
+    prefetch_for_write(flat, start + row_length - 1)

@@ -28,6 +28,7 @@ import numba
 import numpy as np
 from numba import njit, prange
 
+from ._prefetch import prefetch_row
 from .errors import ImageReadError, OptionError
 from .winner import subpixel_winner
 
@@ -39,6 +40,8 @@ _UINT16_TO_8BIT = 1.0 / 257.0
 
 # Below this many pixels `aggregate` stays on one thread: waking a second one costs more.
 _PARALLEL_MIN_NODES = 16384
+# Walk steps ahead whose rows are prefetched.
+_PREFETCH_AHEAD = 8
 
 
 @dataclass(frozen=True)
@@ -318,7 +321,14 @@ def _upward_range(cost, order, parent, weight, out, ready, lo, hi):
     the copy of ``cost`` is fused into the walk instead of being a separate pass.
     """
     disparities = cost.shape[1]
+    out_flat = out.reshape(out.size)
     for k in range(hi - 1, lo - 1, -1):
+        if k - _PREFETCH_AHEAD >= lo:
+            # Rows of a node a few steps ahead and of its parent: in pixel order both are at
+            # data-dependent addresses, and in tree order the parent often is.
+            ahead = order[k - _PREFETCH_AHEAD]
+            prefetch_row(out_flat, ahead, disparities)
+            prefetch_row(out_flat, parent[ahead], disparities)
         v = order[k]
         p = parent[v]
         s = weight[v]
@@ -358,7 +368,12 @@ def _downward_range(order, parent, weight, out, lo, hi, winners, min_disp):
     """
     disparities = out.shape[1]
     take_winners = winners.shape[0] > 0
+    out_flat = out.reshape(out.size)
     for k in range(lo, hi):
+        if k + _PREFETCH_AHEAD < hi:
+            ahead = order[k + _PREFETCH_AHEAD]
+            prefetch_row(out_flat, ahead, disparities)
+            prefetch_row(out_flat, parent[ahead], disparities)
         v = order[k]
         s = weight[v]
         keep = np.float32(1.0) - s * s

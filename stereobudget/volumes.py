@@ -25,7 +25,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit, prange
 
-from ._prefetch import LINE_FLOATS, prefetch_for_write
+from ._prefetch import prefetch_row
 from .bilateral import SliceGrids, slice_pixel
 from .cost import dense_pixel_costs, horizontal_gradient, reversed_right_row, to_gray
 
@@ -33,15 +33,6 @@ from .cost import dense_pixel_costs, horizontal_gradient, reversed_right_row, to
 _ROWS_PER_ITEM = 4
 #: Pixels ahead whose destination rows are prefetched before they are written.
 _PREFETCH_AHEAD = 8
-
-
-@njit(cache=True, inline="always")
-def _prefetch_row(flat, row, num_disp):
-    """Prefetch every cache line of row ``row`` of an (N, num_disp) volume seen as ``flat``."""
-    start = row * num_disp
-    for offset in range(0, num_disp, LINE_FLOATS):
-        prefetch_for_write(flat, start + offset)
-    prefetch_for_write(flat, start + num_disp - 1)
 
 
 @njit(cache=True, inline="always")
@@ -96,7 +87,7 @@ def _pair_rows(left, right, left_grad, right_grad, min_disp, truncation, grad_tr
             reversed_right_row(right, right_grad, y, first_column, use_grad, rev)
             for x in range(w):
                 if x + _PREFETCH_AHEAD < w:
-                    _prefetch_row(left_flat, left_row_of_pixel[y * w + x + _PREFETCH_AHEAD], num_disp)
+                    prefetch_row(left_flat, left_row_of_pixel[y * w + x + _PREFETCH_AHEAD], num_disp)
                 o = buffer[x]
                 if use_grids:
                     slice_pixel(grids, guide, y, x, o, den_base, den, corner_index, band_index, corner_weight)
@@ -113,7 +104,7 @@ def _pair_rows(left, right, left_grad, right_grad, min_disp, truncation, grad_tr
             if with_right:
                 for xr in range(w):
                     if xr + _PREFETCH_AHEAD < w:
-                        _prefetch_row(right_flat, right_row_of_pixel[y * w + xr + _PREFETCH_AHEAD], num_disp)
+                        prefetch_row(right_flat, right_row_of_pixel[y * w + xr + _PREFETCH_AHEAD], num_disp)
                     _gather_right_row(buffer, xr, min_disp, right_rows[right_row_of_pixel[y * w + xr]])
 
 
