@@ -32,6 +32,7 @@ import numpy as np
 from numba import get_num_threads, njit, prange
 
 from .cost import sparse_pair_cost
+from .scratch import empty_volume
 
 #: Rows per parallel work item of the slice kernels.
 _CHUNK = 512
@@ -405,7 +406,7 @@ def slice_volume(guide: np.ndarray, grids: SliceGrids, *, pixel_of_row: np.ndarr
     pixel ``pixel_of_row[k]``, row-major)
     """
     h, w = guide.shape
-    out = np.empty((h * w, grids.values.shape[1]), dtype=np.float32)
+    out = empty_volume((h * w, grids.values.shape[1]))
     _slice_rows(grids, guide, _pixels_of_rows(pixel_of_row, h * w), out)
     return out if pixel_of_row is not None else out.reshape(h, w, -1)
 

@@ -30,6 +30,7 @@ from .sampling import grid_shape
 from .bilateral import filled_sparse_dsi, sparse_dsi_grids
 from .winner import subpixel_winner, winner_take_all  # noqa: F401  (re-exported for callers of decoders)
 from .errors import MismatchError, OptionError
+from . import scratch
 from . import tree as _tree
 from .methods import DEFAULT_METHOD, METHODS  # noqa: F401  (re-exported)
 
@@ -323,6 +324,7 @@ def _decode_hybrid(left_f, guide, samples, tree_guide, *, min_disp, num_disp, pa
     del grids
     disp, _ = left_right_refined_rows(left_rows, right_rows, left_layout=left_layout, right_layout=right_layout,
                                       left_tree=tree, min_disp=min_disp, params=params, timer=timer)
+    scratch.recycle(left_rows, right_rows)
     return disp
 
 
@@ -481,6 +483,7 @@ def decode(left: np.ndarray, samples: SampleSet, *, max_disp: int, min_disp: int
                                        layout=layout)
         with timer("aggregate"):  # the winners are taken during the aggregation's walk
             disp = _tree.aggregate_rows_winners(cost, layout, min_disp=int(min_disp))
+        scratch.recycle(cost)
         with timer("median"):
             disp = median_filter_disparity(disp, params.median_size)
     elif method == "hybrid":

@@ -18,6 +18,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit, prange
 
+from . import scratch
 from . import tree as _tree
 from .winner import subpixel_winner
 
@@ -208,4 +209,5 @@ def full_pair_disparity(left_f, right_f, *, tree_guide, min_disp, num_disp, para
                                                right_layout=right_layout)
     disp, _ = left_right_refined_rows(left_rows, right_rows, left_layout=left_layout, right_layout=right_layout,
                                       left_tree=trees[0], min_disp=min_disp, params=params, timer=timer)
+    scratch.recycle(left_rows, right_rows)
     return disp

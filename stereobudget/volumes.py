@@ -27,6 +27,7 @@ from numba import njit, prange
 
 from ._prefetch import prefetch_row
 from .bilateral import SliceGrids, slice_pixel
+from .scratch import empty_volume
 from .cost import dense_pixel_costs, horizontal_gradient, reversed_right_row, to_gray
 
 #: Image rows per parallel work item (each item allocates its own W x D row buffer).
@@ -164,8 +165,9 @@ def pair_cost_rows(left: np.ndarray, right: np.ndarray, *, min_disp: int, num_di
     use_grids = grids is not None
     if use_grids and (guide is None or grids.values.shape[1] != num_disp):
         raise ValueError("grids need a guide and num_disp layers")
-    left_rows = np.empty((h * w, int(num_disp)), np.float32)
-    right_rows = np.empty((h * w if right_layout is not None else 0, int(num_disp)), np.float32)
+    left_rows = empty_volume((h * w, int(num_disp)))
+    right_rows = (empty_volume((h * w, int(num_disp))) if right_layout is not None
+                  else np.empty((0, int(num_disp)), np.float32))
     empty_rows = np.zeros(0, np.int64)
     _pair_rows(left, right, left_grad, right_grad, int(min_disp), np.float32(truncation),
                np.float32(grad_truncation), np.float32(grad_weight),

@@ -78,3 +78,40 @@ def test_grids_need_their_guide_and_layer_count():
     with pytest.raises(ValueError, match="layers"):
         pair_cost_rows(left, right, min_disp=0, num_disp=6, **DENSE, left_layout=left_layout, grids=grids,
                        guide=guide)
+
+
+def test_spare_volumes_are_reused_only_once_and_within_the_limit(monkeypatch):
+    from stereobudget import scratch
+    scratch.release()
+    first = scratch.empty_volume((10, 7))
+    scratch.recycle(first)
+    again = scratch.empty_volume((7, 10))             # same size: the spare memory comes back
+    assert np.shares_memory(again, first) and again.shape == (7, 10) and again.dtype == np.float32
+    assert not np.shares_memory(scratch.empty_volume((7, 10)), first)   # ... to one caller only
+    monkeypatch.setattr(scratch, "SPARE_BYTES", 1000)
+    scratch.recycle(np.empty(300, np.float32))         # too large to keep
+    scratch.recycle(np.empty(200, np.float32), np.empty(200, np.float32))   # only the newest fits
+    assert [s.size for s in scratch._spare] == [200]
+    scratch.release()
+    assert scratch._spare == []
+
+
+def test_decodes_in_one_process_give_the_same_disparity_with_recycled_volumes():
+    # The second decode runs on the first one's volumes (uninitialised memory that held
+    # its costs): every value must be written again, so the results are identical.
+    import stereobudget
+    from stereobudget import scratch
+    from stereobudget.container import encode_image
+    from stereobudget.sampling import SamplingPattern
+    from stereobudget.scenes import make_scene
+    scene = make_scene("slanted", height=48, width=64, max_disp=12, seed=3)
+    samples = encode_image(scene.right, pattern=SamplingPattern("grid", 4, 4))
+    scratch.release()
+    for method in ("hybrid", "sparse"):
+        first = stereobudget.decode(scene.left, samples, max_disp=12, method=method).disparity
+        assert scratch._spare, "the decode handed its volumes back"
+        for spare in scratch._spare:
+            spare.fill(np.nan)                         # poison: any value not rewritten shows
+        second = stereobudget.decode(scene.left, samples, max_disp=12, method=method).disparity
+        np.testing.assert_array_equal(first, second)
+    scratch.release()
