@@ -553,6 +553,7 @@ import numpy as np
 from stereobudget.container import encode_image
 from stereobudget.sampling import SamplingPattern
 from stereobudget.decoders import decode
+from stereobudget import scratch
 import inspect
 h, w, nd, cases = json.loads(sys.argv[1])
 whole = {"tile_rows": 0} if "tile_rows" in inspect.signature(decode).parameters else {}
@@ -567,6 +568,7 @@ for method, stride, kind in cases:
     tiny = encode_image(left[:24, :32], pattern=SamplingPattern(kind, stride, stride))
     decode(left[:24, :32], tiny, max_disp=5, method=method, **whole)          # JIT warm-up
     samples = encode_image(left, pattern=SamplingPattern(kind, stride, stride))
+    scratch.release()               # the previous case's spare volumes: not this decode's memory
     open("/proc/self/clear_refs", "w").write("5")                      # reset the peak RSS
     rest = rss("VmRSS")
     decode(left, samples, max_disp=nd - 1, method=method, **whole)
