@@ -32,7 +32,7 @@ import numpy as np
 from numba import get_num_threads, njit, prange
 
 from .cost import sparse_pair_cost
-from .scratch import empty_volume
+from .scratch import empty_volume, recycle, zeroed_volume
 
 #: Rows per parallel work item of the slice kernels.
 _CHUNK = 512
@@ -177,9 +177,10 @@ _SPARSE_BLUR_MIN_CHANNELS = 16
 
 
 def _blur_grid(grid: np.ndarray, geom: GridGeometry, occupied: np.ndarray) -> np.ndarray:
-    """Separable Gaussian blur of a C-contiguous (GY, GX, GZ, K) grid; ``occupied`` (GY, GX, GZ) bool
-    marks the cells the splat touched (all others are zero)."""
-    tmp = np.empty_like(grid)
+    """Separable Gaussian blur of a C-contiguous float32 (GY, GX, GZ, K) grid; ``occupied`` (GY, GX, GZ)
+    bool marks the cells the splat touched (all others are zero).  ``grid`` is consumed (its
+    memory is used for the passes and then handed to :mod:`stereobudget.scratch`)."""
+    tmp = empty_volume(grid.shape)
     ks = _gaussian_kernel(geom.blur_s)
     kr = _gaussian_kernel(geom.blur_r)
     if grid.shape[3] < _SPARSE_BLUR_MIN_CHANNELS:
@@ -189,6 +190,7 @@ def _blur_grid(grid: np.ndarray, geom: GridGeometry, occupied: np.ndarray) -> np
             src_v, dst_v = _axis_view(src, axis, merge), _axis_view(dst, axis, merge)
             everywhere = np.ones(src_v.shape[:3], np.bool_)
             _blur_rows(src_v, dst_v, kernel, everywhere, np.empty_like(everywhere))
+        recycle(grid)
         return tmp
     occupied_y = np.empty_like(occupied)
     occupied_xy = np.empty_like(occupied)
@@ -197,6 +199,7 @@ def _blur_grid(grid: np.ndarray, geom: GridGeometry, occupied: np.ndarray) -> np
     _blur_rows(_axis_view(tmp, 1), _axis_view(grid, 1), ks, _axis_view(occupied_y, 1), _axis_view(occupied_xy, 1))
     _blur_rows(_axis_view(grid, 2), _axis_view(tmp, 2), kr, _axis_view(occupied_xy, 2),
                _axis_view(occupied_xyz, 2))
+    recycle(grid)
     return tmp
 
 
@@ -598,8 +601,8 @@ def _lattice_sparse_dsi_grids(left, guide, rows, cols, right_values, right_steps
     band_n = int(min(max(int(last_changed.max()) + reach + 2, 1), gx))
     first_band_layer = np.searchsorted(last_changed, np.arange(gx), side="left").astype(np.int64)
 
-    grid_val = np.zeros(geom.shape + (num_disp,), np.float32)
-    band_w = np.zeros((gy, band_n, gz, num_disp), np.float32)
+    grid_val = zeroed_volume(geom.shape + (num_disp,))
+    band_w = zeroed_volume((gy, band_n, gz, num_disp))
     occupied = np.zeros(geom.shape, np.bool_)
     sample_rows = np.unique(np.asarray(rows, np.int64))
     _splat_lattice_dsi(sample_rows, offset_x, int(stride), len(rows) // max(len(sample_rows), 1),
@@ -658,7 +661,9 @@ def sparse_joint_bilateral(guide: np.ndarray, rows: np.ndarray, cols: np.ndarray
     grid_w = _blur_grid(grid_w, geom, occupied)
     grids = _slice_grids(grid_val, grid_w, None, geom, density=len(rows) / float(h * w),
                          missing_value=missing_value)
-    return slice_volume(guide, grids)
+    volume = slice_volume(guide, grids)
+    release_grids(grids)
+    return volume
 
 
 def filled_sparse_dsi(left: np.ndarray, guide: np.ndarray, rows: np.ndarray, cols: np.ndarray,
@@ -706,7 +711,14 @@ def filled_sparse_dsi(left: np.ndarray, guide: np.ndarray, rows: np.ndarray, col
                              sigma_s=sigma_s, sigma_r=sigma_r, truncation=truncation, right_steps=right_steps,
                              step_spacing=step_spacing, step_weight=step_weight, step_truncation=step_truncation,
                              cells_per_sigma_s=cells_per_sigma_s, cells_per_sigma_r=cells_per_sigma_r)
-    return slice_volume(guide, grids, pixel_of_row=pixel_of_row)
+    volume = slice_volume(guide, grids, pixel_of_row=pixel_of_row)
+    release_grids(grids)
+    return volume
+
+
+def release_grids(grids: SliceGrids) -> None:
+    """Hand the large grids of a :class:`SliceGrids` no longer needed to :mod:`stereobudget.scratch`."""
+    recycle(grids.values, grids.base_weights, grids.band_weights)
 
 
 def sparse_dsi_grids(left: np.ndarray, guide: np.ndarray, rows: np.ndarray, cols: np.ndarray,

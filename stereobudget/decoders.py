@@ -27,7 +27,7 @@ import numpy as np
 from .container import SampleSet
 from .cost import DEFAULT_TRUNCATION, noise_level, sample_row_steps, to_float_image, to_gray
 from .sampling import grid_shape
-from .bilateral import filled_sparse_dsi, sparse_dsi_grids
+from .bilateral import filled_sparse_dsi, release_grids, sparse_dsi_grids
 from .winner import subpixel_winner, winner_take_all  # noqa: F401  (re-exported for callers of decoders)
 from .errors import MismatchError, OptionError
 from . import scratch
@@ -321,6 +321,7 @@ def _decode_hybrid(left_f, guide, samples, tree_guide, *, min_disp, num_disp, pa
             grad_weight=params.grad_weight, grad_truncation=params.grad_truncation, left_layout=left_layout,
             right_layout=right_layout, grids=grids, guide=guide,
             mix_weights=(weight / params.truncation, (1.0 - weight) / dense_max))
+    release_grids(grids)
     del grids
     disp, _ = left_right_refined_rows(left_rows, right_rows, left_layout=left_layout, right_layout=right_layout,
                                       left_tree=tree, min_disp=min_disp, params=params, timer=timer)
