@@ -101,8 +101,9 @@ def estimate_decode_memory(height: int, width: int, num_disp: int, method: str, 
     method            at most alive at once             where
     ================  ================================  ====================================
     ``sparse``        ``max(3 G, 2 G + V)``             grid blur; grids + sliced volume
-    ``hybrid``        ``max(3 G, 2 G + V, 2 V)``        fill; the mixed DSI + the right
-                                                        view's volume during the check
+    ``hybrid``        ``max(3 G, 2 G + 2 V)``           grid blur; the sliced grids while
+                                                        the cost kernel writes the left and
+                                                        right views' volumes
     ``full``          ``2 V``                           left + right-view volume during the
                                                         left-right check; left + refinement
                                                         volume after it
@@ -144,8 +145,8 @@ def estimate_decode_memory(height: int, width: int, num_disp: int, method: str, 
         grid = _bilateral_grid_bytes(height, width, num_disp, stride=stride,
                                      sigma_s_per_stride=sigma_s_per_stride, sigma_r=sigma_r,
                                      cells_per_sigma_s=cells_per_sigma_s, cells_per_sigma_r=cells_per_sigma_r)
-        fill = max(3 * grid, 2 * grid + volume)
-        peak = fill if method == "sparse" else max(fill, 2 * volume)
+        # Hybrid slices its grids inside the kernel that writes both views' volumes.
+        peak = max(3 * grid, 2 * grid + (volume if method == "sparse" else 2 * volume))
     elif method in ("full", "downsample"):
         peak = 2 * volume
     else:

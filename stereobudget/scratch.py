@@ -16,7 +16,7 @@ import threading
 import numpy as np
 
 #: Most bytes of volume memory kept between decodes (the oldest go first).
-SPARE_BYTES = 512 * 2 ** 20
+SPARE_BYTES = 256 * 2 ** 20
 
 _lock = threading.Lock()
 _spare: list = []
