@@ -436,6 +436,20 @@ def _pixels_of_rows(pixel_of_row, node_count):
 
 
 @njit(cache=True, inline="always")
+def _layer_block(block, blocks, num_disp):
+    """Layers [first, last) of thread block ``block`` of ``blocks``."""
+    return block * num_disp // blocks, (block + 1) * num_disp // blocks
+
+
+@njit(cache=True, inline="always")
+def _left_step(guide, y, x, step_spacing, step_weight):
+    """I1's gray difference over the sample spacing at (y, x) (NaN: no step term or no neighbour)."""
+    if step_weight > 0 and x + step_spacing < guide.shape[1]:
+        return guide[y, x + step_spacing] - guide[y, x]
+    return np.float32(np.nan)
+
+
+@njit(cache=True, inline="always")
 def _splat_cost(grid_val, band_w, occupied, y0, ty, x0, tx, z0, tz, layer, cost):
     """Add ``cost`` with its 8 trilinear weights into layer ``layer`` of ``grid_val``, and the
     weights into ``band_w`` where the cell lies in the band (x-cells below its width)."""
@@ -473,8 +487,7 @@ def _splat_sparse_dsi_split(rows, cols, right_values, right_steps, left, guide, 
     w = left.shape[1]
     blocks = max(1, min(blocks, num_disp))
     for block in prange(blocks):
-        first = block * num_disp // blocks
-        last = (block + 1) * num_disp // blocks
+        first, last = _layer_block(block, blocks, num_disp)
         for k in range(rows.shape[0]):
             y = rows[k]
             y0, ty = _hat(y * inv_cs, gy_n)
@@ -482,9 +495,7 @@ def _splat_sparse_dsi_split(rows, cols, right_values, right_steps, left, guide, 
                 x = cols[k] + min_disp + i
                 if x < 0 or x >= w:
                     continue
-                left_step = np.float32(np.nan)
-                if step_weight > 0 and x + step_spacing < w:
-                    left_step = guide[y, x + step_spacing] - guide[y, x]
+                left_step = _left_step(guide, y, x, step_spacing, step_weight)
                 cost = sparse_pair_cost(left[y, x], right_values[k], left_step, right_steps[k], truncation,
                                         step_weight, step_truncation)
                 x0, tx = _hat(x * inv_cs, gx_n)
@@ -510,8 +521,7 @@ def _splat_lattice_dsi(sample_rows, offset_x, stride, n_cols, right_values, righ
     w = left.shape[1]
     blocks = max(1, min(blocks, num_disp))
     for block in prange(blocks):
-        first = block * num_disp // blocks
-        last = (block + 1) * num_disp // blocks
+        first, last = _layer_block(block, blocks, num_disp)
         for r in range(sample_rows.shape[0]):
             y = sample_rows[r]
             y0, ty = _hat(y * inv_cs, gy_n)
@@ -521,9 +531,7 @@ def _splat_lattice_dsi(sample_rows, offset_x, stride, n_cols, right_values, righ
                 i_first = first + (reach - first) % stride
                 if i_first > i_max:
                     continue
-                left_step = np.float32(np.nan)
-                if step_weight > 0 and x + step_spacing < w:
-                    left_step = guide[y, x + step_spacing] - guide[y, x]
+                left_step = _left_step(guide, y, x, step_spacing, step_weight)
                 x0, tx = _hat(x * inv_cs, gx_n)
                 z0, tz = _hat(guide[y, x] * inv_cr, gz_n)
                 for i in range(i_first, i_max + 1, stride):
