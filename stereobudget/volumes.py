@@ -27,8 +27,8 @@ from numba import njit, prange
 
 from ._prefetch import prefetch_row
 from .bilateral import SliceGrids, slice_pixel
-from .scratch import empty_volume
 from .cost import dense_pixel_costs, horizontal_gradient, reversed_right_row, to_gray
+from .scratch import empty_volume
 
 #: Image rows per parallel work item (each item allocates its own W x D row buffer).
 _ROWS_PER_ITEM = 4
