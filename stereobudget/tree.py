@@ -86,8 +86,9 @@ class TreeLayout:
     is usually the row just before it), so the walk streams through memory instead of
     fetching each pixel's row from a data-dependent address: on Teddy the aggregation
     takes about half the time of the same walk over a pixel-ordered volume
-    (docs/performance.md).  Sparse's fill, the right view's volume and the refinement
-    cost are written in this order by the kernels that produce them.
+    (docs/performance.md).  Every volume a decoder aggregates is written in this order by
+    the kernel that produces it: Sparse's fill, both views' costs
+    (:func:`stereobudget.volumes.pair_cost_rows`) and the refinement cost.
 
     Attributes
     ----------
