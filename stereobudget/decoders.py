@@ -293,7 +293,7 @@ def gaussian_lowpass(image_f32: np.ndarray, *, sigma: float) -> np.ndarray:
 
 
 def _decode_hybrid(left_f, guide, samples, tree_guide, *, min_disp, num_disp, params, timer):
-    from .refine import left_right_refined_rows
+    from .refine import left_right_refined_rows, pair_trees
     from .volumes import pair_cost_rows
     stride = _stride(samples)
     weight = params.hybrid_sparse_weight if params.hybrid_sparse_weight is not None else hybrid_weight(stride)
@@ -306,11 +306,7 @@ def _decode_hybrid(left_f, guide, samples, tree_guide, *, min_disp, num_disp, pa
         right_lp = lowpass_interpolation(samples, sigma=sigma)
         left_lp = gaussian_lowpass(left_f, sigma=sigma)
     with timer("tree"):
-        trees = _tree.build_trees([tree_guide, right_lp] if params.right_check == "tree" else [tree_guide],
-                                  sigma=params.tree_sigma, median_size=params.tree_median)
-    tree = trees[0]
-    left_layout = _tree.tree_layout(tree)
-    right_layout = _tree.tree_layout(trees[1]) if len(trees) > 1 else None
+        tree, left_layout, right_layout = pair_trees(tree_guide, right_lp, params=params)
     with timer("cost"):
         # The fill and the dense DSI of the low-passed pair, both brought to [0, 1] by their
         # largest possible value and mixed per pixel; the right view's volume is gathered

@@ -189,6 +189,23 @@ def left_right_refined_rows(left_rows, right_rows, *, left_layout, right_layout,
     return disp, stable
 
 
+def pair_trees(tree_guide, right_guide, *, params):
+    """I1's tree and, when the check uses it (``params.right_check == "tree"``), the right
+    image's, built concurrently (:func:`stereobudget.tree.build_trees`).
+
+    Returns
+    -------
+    tree : stereobudget.tree.MinimumSpanningTree
+        I1's tree.
+    left_layout, right_layout : stereobudget.tree.TreeLayout
+        Their row layouts; ``right_layout`` is None for the diagonal check.
+    """
+    guides = [tree_guide, right_guide] if params.right_check == "tree" else [tree_guide]
+    trees = _tree.build_trees(guides, sigma=params.tree_sigma, median_size=params.tree_median)
+    right_layout = _tree.tree_layout(trees[1]) if len(trees) > 1 else None
+    return trees[0], _tree.tree_layout(trees[0]), right_layout
+
+
 def full_pair_disparity(left_f, right_f, *, tree_guide, min_disp, num_disp, params, timer):
     """Standard full-pair stereo with Yang's non-local method (the "100 % of I2" reference).
 
@@ -198,16 +215,13 @@ def full_pair_disparity(left_f, right_f, *, tree_guide, min_disp, num_disp, para
     """
     from .volumes import pair_cost_rows
     with timer("tree"):
-        trees = _tree.build_trees([tree_guide, right_f] if params.right_check == "tree" else [tree_guide],
-                                  sigma=params.tree_sigma, median_size=params.tree_median)
-    left_layout = _tree.tree_layout(trees[0])
-    right_layout = _tree.tree_layout(trees[1]) if len(trees) > 1 else None
+        tree, left_layout, right_layout = pair_trees(tree_guide, right_f, params=params)
     with timer("cost"):
         left_rows, right_rows = pair_cost_rows(left_f, right_f, min_disp=min_disp, num_disp=num_disp,
                                                truncation=params.full_truncation, grad_weight=params.grad_weight,
                                                grad_truncation=params.grad_truncation, left_layout=left_layout,
                                                right_layout=right_layout)
     disp, _ = left_right_refined_rows(left_rows, right_rows, left_layout=left_layout, right_layout=right_layout,
-                                      left_tree=trees[0], min_disp=min_disp, params=params, timer=timer)
+                                      left_tree=tree, min_disp=min_disp, params=params, timer=timer)
     scratch.recycle(left_rows, right_rows)
     return disp
