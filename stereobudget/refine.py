@@ -94,26 +94,6 @@ def left_right_stable(disp_left, disp_right, tolerance):
     return out
 
 
-@njit(cache=True, parallel=True)
-def _refinement_cost_into(disp, stable, min_disp, pixel_of_row, out):
-    """Row k of ``out`` = Yang's refinement cost of pixel ``pixel_of_row[k]``."""
-    num_disp = out.shape[1]
-    disp_flat = disp.reshape(-1)
-    stable_flat = stable.reshape(-1)
-    for k in prange(out.shape[0]):
-        p = pixel_of_row[k]
-        row = out[k]
-        if stable_flat[p]:
-            d = disp_flat[p]
-            for i in range(num_disp):
-                # float32 subtraction: the exact difference rounded once, as in float64.
-                row[i] = abs(np.float32(min_disp + i) - d)
-        else:
-            for i in range(num_disp):
-                row[i] = 0.0
-    return out
-
-
 def nonlocal_refinement(disp: np.ndarray, stable: np.ndarray, tree, *, min_disp: int, num_disp: int,
                         out: np.ndarray | None = None):
     """Propagate stable disparities to unstable pixels along the tree (Yang's refinement).
@@ -125,10 +105,10 @@ def nonlocal_refinement(disp: np.ndarray, stable: np.ndarray, tree, *, min_disp:
     tree : stereobudget.tree.MinimumSpanningTree
         Tree of the left image.
     out : ndarray, float32, C-contiguous with H * W * num_disp values, optional
-        Scratch volume for the refinement cost (a dead cost volume can be recycled:
-        reusing it saves the page faults of a fresh allocation).  The cost is written in
-        the tree's row layout (:class:`stereobudget.tree.TreeLayout`), which the
-        aggregation walk streams through.
+        Scratch volume for the aggregation (a dead cost volume can be recycled: reusing
+        it saves the page faults of a fresh allocation); its contents are overwritten.
+        The refinement cost is never stored: the walk computes each row in the tree's row
+        layout when it first reaches it (:func:`stereobudget.tree.distance_rows_winners`).
 
     Returns
     -------
@@ -137,9 +117,10 @@ def nonlocal_refinement(disp: np.ndarray, stable: np.ndarray, tree, *, min_disp:
     layout = _tree.tree_layout(tree)
     h, w = disp.shape
     rows = np.empty((h * w, int(num_disp)), np.float32) if out is None else out.reshape(h * w, int(num_disp))
-    _refinement_cost_into(np.ascontiguousarray(disp, np.float32), np.ascontiguousarray(stable), int(min_disp),
-                          layout.pixel_of_row, rows)
-    return _tree.aggregate_rows_winners(rows, layout, min_disp=int(min_disp))
+    # Yang's cost |d - D(q)| of the stable pixels (0 elsewhere) is computed by the walk
+    # itself from each row's level, so it never takes a pass over the volume of its own.
+    levels = np.where(stable, np.asarray(disp, np.float32), np.float32(np.nan)).reshape(-1)[layout.pixel_of_row]
+    return _tree.distance_rows_winners(levels, layout, min_disp=int(min_disp), out=rows)
 
 
 def left_right_refined_rows(left_rows, right_rows, *, left_layout, right_layout, left_tree, min_disp, params,

@@ -33,7 +33,7 @@ from .errors import ImageReadError, OptionError
 from .winner import subpixel_winner
 
 __all__ = ["MinimumSpanningTree", "TreeLayout", "build_tree", "build_trees", "tree_layout", "aggregate",
-           "aggregate_winners", "aggregate_rows_winners"]
+           "aggregate_winners", "aggregate_rows_winners", "distance_rows_winners"]
 
 # Scale of a uint16 difference to 8-bit units: 65535 / 257 == 255.
 _UINT16_TO_8BIT = 1.0 / 257.0
@@ -314,14 +314,30 @@ def _depth_first(bits, keys, height, width, root):
     return order, parent, parent_key, visited
 
 
+@njit(cache=True, inline="always")
+def _distance_row(level, min_disp, target):
+    """``target[i] = |min_disp + i - level|``, or 0 where ``level`` is NaN: the cost of Yang's
+    non-local refinement (:func:`stereobudget.refine.nonlocal_refinement`)."""
+    if level != level:
+        for d in range(target.shape[0]):
+            target[d] = 0.0
+    else:
+        for d in range(target.shape[0]):
+            # float32 subtraction: the exact difference rounded once, as in float64.
+            target[d] = abs(np.float32(min_disp + d) - level)
+
+
 @njit(cache=True)
-def _upward_range(cost, order, parent, weight, out, ready, lo, hi):
+def _upward_range(cost, levels, min_disp, order, parent, weight, out, ready, lo, hi):
     """Leaf-to-root pass over order positions ``[lo, hi)``, each node pushing into its parent.
 
-    ``ready[v]`` says whether ``out[v]`` already holds ``cost[v]`` plus pushed children, so
-    the copy of ``cost`` is fused into the walk instead of being a separate pass.
+    ``ready[v]`` says whether ``out[v]`` already holds ``C(v)`` plus pushed children, so
+    the copy of ``C(v)`` is fused into the walk instead of being a separate pass.  ``C``
+    is ``cost``, or with ``levels`` (float32 ``(N,)`` instead of None) the refinement
+    cost of :func:`_distance_row`, computed here and never stored on its own.  (numba
+    compiles the two cases apart, so the ``levels is None`` tests cost nothing.)
     """
-    disparities = cost.shape[1]
+    disparities = out.shape[1]
     out_flat = out.reshape(out.size)
     for k in range(hi - 1, lo - 1, -1):
         if k - _PREFETCH_AHEAD >= lo:
@@ -335,28 +351,40 @@ def _upward_range(cost, order, parent, weight, out, ready, lo, hi):
         s = weight[v]
         child = out[v]
         if not ready[v]:  # a leaf: nothing was pushed into it
-            source = cost[v]
-            for d in range(disparities):
-                child[d] = source[d]
+            if levels is None:
+                source = cost[v]
+                for d in range(disparities):
+                    child[d] = source[d]
+            else:
+                _distance_row(levels[v], min_disp, child)
             ready[v] = 1
         target = out[p]
         if ready[p]:
             for d in range(disparities):
                 target[d] += s * child[d]
         else:
-            source = cost[p]
-            for d in range(disparities):
-                target[d] = source[d] + s * child[d]
+            if levels is None:
+                source = cost[p]
+                for d in range(disparities):
+                    target[d] = source[d] + s * child[d]
+            else:
+                # The same two roundings as a stored cost row plus the child.
+                _distance_row(levels[p], min_disp, target)
+                for d in range(disparities):
+                    target[d] += s * child[d]
             ready[p] = 1
 
 
 @njit(cache=True)
-def _make_ready(cost, out, ready, v):
+def _make_ready(cost, levels, min_disp, out, ready, v):
     if not ready[v]:
-        source = cost[v]
-        target = out[v]
-        for d in range(cost.shape[1]):
-            target[d] = source[d]
+        if levels is None:
+            source = cost[v]
+            target = out[v]
+            for d in range(out.shape[1]):
+                target[d] = source[d]
+        else:
+            _distance_row(levels[v], min_disp, out[v])
         ready[v] = 1
 
 
@@ -387,12 +415,13 @@ def _downward_range(order, parent, weight, out, lo, hi, winners, min_disp):
 
 
 @njit(cache=True)
-def _aggregate_serial(cost, order, parent, weight, out, winners, min_disp):
-    """Both passes on one thread; ``cost``/``out`` are ``(N, D)`` float32, may alias."""
+def _aggregate_serial(cost, levels, order, parent, weight, out, winners, min_disp):
+    """Both passes on one thread; ``cost``/``out`` are ``(N, D)`` float32, may alias
+    (``levels``: see :func:`_upward_range`)."""
     node_count = order.shape[0]
     ready = np.zeros(node_count, dtype=np.uint8)
-    _upward_range(cost, order, parent, weight, out, ready, 1, node_count)
-    _make_ready(cost, out, ready, order[0])
+    _upward_range(cost, levels, min_disp, order, parent, weight, out, ready, 1, node_count)
+    _make_ready(cost, levels, min_disp, out, ready, order[0])
     if winners.shape[0] > 0:
         winners[order[0]] = subpixel_winner(out[order[0]], min_disp)
     _downward_range(order, parent, weight, out, 1, node_count, winners, min_disp)
@@ -417,7 +446,7 @@ def _balanced_subtree(order, parent):
 
 
 @njit(cache=True, parallel=True)
-def _aggregate_two_threads(cost, order, parent, weight, out, winners, min_disp):
+def _aggregate_two_threads(cost, levels, order, parent, weight, out, winners, min_disp):
     """Both passes with the tree cut into a subtree A and the rest B, one thread each.
 
     In pre-order the subtree of the node at position ``a0`` is the contiguous range
@@ -426,18 +455,18 @@ def _aggregate_two_threads(cost, order, parent, weight, out, winners, min_disp):
     that path first, so A and B can again run independently.  Threads never write the
     same row.
     """
-    node_count, disparities = cost.shape
+    node_count, disparities = out.shape
     a0, subtree_size = _balanced_subtree(order, parent)
     a1 = a0 + subtree_size
     ready = np.zeros(node_count, dtype=np.uint8)
     for part in prange(2):
         if part == 0:
-            _upward_range(cost, order, parent, weight, out, ready, a0 + 1, a1)
-            _make_ready(cost, out, ready, order[a0])
+            _upward_range(cost, levels, min_disp, order, parent, weight, out, ready, a0 + 1, a1)
+            _make_ready(cost, levels, min_disp, out, ready, order[a0])
         else:
-            _upward_range(cost, order, parent, weight, out, ready, a1, node_count)
-            _upward_range(cost, order, parent, weight, out, ready, 1, a0)
-            _make_ready(cost, out, ready, order[0])
+            _upward_range(cost, levels, min_disp, order, parent, weight, out, ready, a1, node_count)
+            _upward_range(cost, levels, min_disp, order, parent, weight, out, ready, 1, a0)
+            _make_ready(cost, levels, min_disp, out, ready, order[0])
 
     # Carry A's upward sum into every ancestor, attenuated along the path.
     top = order[a0]
@@ -636,12 +665,16 @@ def _aggregate(cost, tree, *, out, min_disp):
     return out, (winners.reshape(tree.height, tree.width) if take_winners else None)
 
 
-def _walk(cost, order, parent, weight, out, winners, min_disp):
-    """Both passes over ``(N, D)`` rows: on two threads for large trees, else on one."""
+def _walk(cost, order, parent, weight, out, winners, min_disp, *, levels=None):
+    """Both passes over ``(N, D)`` rows: on two threads for large trees, else on one.
+
+    ``levels``: the cost is Yang's refinement cost of these levels (:func:`_distance_row`),
+    ``cost`` is not read.
+    """
     if order.shape[0] < _PARALLEL_MIN_NODES or numba.get_num_threads() < 2:
-        _aggregate_serial(cost, order, parent, weight, out, winners, min_disp)
+        _aggregate_serial(cost, levels, order, parent, weight, out, winners, min_disp)
     else:
-        _aggregate_two_threads(cost, order, parent, weight, out, winners, min_disp)
+        _aggregate_two_threads(cost, levels, order, parent, weight, out, winners, min_disp)
 
 
 @njit(cache=True, nogil=True)
@@ -726,11 +759,51 @@ def aggregate_rows_winners(volume: np.ndarray, layout: TreeLayout, *, min_disp: 
         float32 ``(H, W)`` disparity, in pixel order.  The arithmetic is that of the walk
         over a pixel-ordered volume, step for step, so the result is bit-identical.
     """
+    _check_rows(volume, layout)
+    winners = np.empty(layout.height * layout.width, dtype=np.float32)
+    if volume.size:
+        _walk(volume, layout.rows, layout.parent_row, layout.weight_row, volume, winners, int(min_disp))
+    return winners[layout.row_of_pixel].reshape(layout.height, layout.width)
+
+
+def distance_rows_winners(levels: np.ndarray, layout: TreeLayout, *, min_disp: int, out: np.ndarray) -> np.ndarray:
+    """Winners of the aggregated cost ``|min_disp + i - level|`` (0 where the level is NaN).
+
+    The cost of Yang's non-local refinement (:func:`stereobudget.refine.nonlocal_refinement`),
+    aggregated on the tree without being stored first: the walk computes each row when
+    it first touches it.
+
+    Parameters
+    ----------
+    levels : numpy.ndarray
+        float32 ``(N,)``, in the layout's row order: the level of each row's pixel, NaN
+        where the pixel contributes no cost.
+    layout : TreeLayout
+    min_disp : int, keyword-only
+        Disparity of layer 0.
+    out : numpy.ndarray, keyword-only
+        float32 C-contiguous ``(N, D)`` scratch volume (its contents are overwritten and
+        left undefined); ``D`` is the number of layers.
+
+    Returns
+    -------
+    numpy.ndarray
+        float32 ``(H, W)`` disparity, in pixel order: the same values as aggregating the
+        stored cost with :func:`aggregate_rows_winners`, bit for bit.
+    """
+    _check_rows(out, layout)
+    levels = np.ascontiguousarray(levels, np.float32)
+    if levels.shape != (out.shape[0],):
+        raise ValueError(f"levels must have one value per row ({out.shape[0]}), got {levels.shape}")
+    winners = np.empty(layout.height * layout.width, dtype=np.float32)
+    if out.size:
+        _walk(out, layout.rows, layout.parent_row, layout.weight_row, out, winners, int(min_disp),
+              levels=levels)
+    return winners[layout.row_of_pixel].reshape(layout.height, layout.width)
+
+
+def _check_rows(volume, layout):
     node_count = layout.height * layout.width
     if volume.ndim != 2 or volume.shape[0] != node_count or volume.dtype != np.float32 \
             or not volume.flags.c_contiguous:
         raise ValueError(f"volume must be a C-contiguous float32 array of {node_count} rows, got {volume.shape}")
-    winners = np.empty(node_count, dtype=np.float32)
-    if node_count and volume.shape[1]:
-        _walk(volume, layout.rows, layout.parent_row, layout.weight_row, volume, winners, int(min_disp))
-    return winners[layout.row_of_pixel].reshape(layout.height, layout.width)

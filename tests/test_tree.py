@@ -18,7 +18,7 @@ from hypothesis import strategies as st
 
 from stereobudget.errors import ImageReadError, OptionError
 from stereobudget.tree import (MinimumSpanningTree, aggregate, aggregate_rows_winners, aggregate_winners, build_trees,
-                               build_tree, tree_layout)
+                               build_tree, distance_rows_winners, tree_layout)
 from stereobudget.winner import winner_take_all
 import stereobudget.tree as tree_module
 
@@ -287,8 +287,8 @@ def test_two_thread_split_equals_bruteforce():
     similarity, tree = tree_distance_similarity_bruteforce(guide, sigma=SIGMA, median_size=3)
     expected = similarity @ cost.reshape(-1, 5).astype(np.float64)
     out = np.empty((156, 5), np.float32)
-    tree_module._aggregate_two_threads(cost.reshape(-1, 5), tree.order, tree.parent, tree.weight, out,
-                                      np.empty(0, np.float32), 0)
+    tree_module._aggregate_two_threads(cost.reshape(-1, 5), None, tree.order, tree.parent,
+                                       tree.weight, out, np.empty(0, np.float32), 0)
     np.testing.assert_allclose(out, expected, rtol=1e-4)
 
 
@@ -299,8 +299,8 @@ def test_large_grid_parallel_path_matches_serial():
     tree = build_tree(guide)
     assert tree.height * tree.width >= tree_module._PARALLEL_MIN_NODES
     serial = np.empty_like(cost)
-    tree_module._aggregate_serial(cost.reshape(-1, 20), tree.order, tree.parent, tree.weight, serial.reshape(-1, 20),
-                                  np.empty(0, np.float32), 0)
+    tree_module._aggregate_serial(cost.reshape(-1, 20), None, tree.order, tree.parent, tree.weight,
+                                  serial.reshape(-1, 20), np.empty(0, np.float32), 0)
     np.testing.assert_allclose(aggregate(cost, tree), serial, rtol=1e-5)
     in_place = cost.copy()
     aggregate(in_place, tree, out=in_place)
@@ -341,6 +341,25 @@ def test_walk_over_the_depth_first_row_layout_is_bit_identical(shape):
     assert np.array_equal(aggregate_rows_winners(rows, layout, min_disp=2), expected)
     # The rows are aggregated in place, each equal to its pixel's aggregate.
     assert np.array_equal(rows, aggregate(cost, tree).reshape(-1, 7)[tree.order])
+
+
+@pytest.mark.parametrize("shape", [(12, 13), (140, 150)])  # the serial walk and the two-thread split
+@pytest.mark.parametrize("min_disp", [0, -4])
+def test_distance_cost_computed_in_the_walk_equals_the_stored_cost(shape, min_disp):
+    rng = np.random.default_rng(24)
+    tree, _ = smooth_tree_and_cost(shape, 1, seed=24)
+    layout = tree_layout(tree)
+    layers = 9
+    levels = (min_disp + rng.random(tree.size) * (layers - 1)).astype(np.float32)
+    levels[rng.random(tree.size) < 0.3] = np.nan
+    # The cost it stands for: |min_disp + i - level|, 0 where the level is NaN.
+    stored = np.abs(np.float32(min_disp) + np.arange(layers, dtype=np.float32) - levels[:, None])
+    stored[np.isnan(levels)] = 0.0
+    expected = aggregate_rows_winners(np.ascontiguousarray(stored, np.float32), layout, min_disp=min_disp)
+    scratch = np.full((tree.size, layers), np.nan, np.float32)  # contents must not matter
+    assert np.array_equal(distance_rows_winners(levels, layout, min_disp=min_disp, out=scratch), expected)
+    with pytest.raises(ValueError, match="one value per row"):
+        distance_rows_winners(levels[:-1], layout, min_disp=min_disp, out=scratch)
 
 
 def test_constant_cost_is_aggregated_proportionally_per_pixel():
