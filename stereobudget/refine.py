@@ -155,9 +155,11 @@ def left_right_refined_rows(left_rows, right_rows, *, left_layout, right_layout,
     h, w = left_layout.height, left_layout.width
     with timer("aggregate"):
         # Winners are taken during the aggregation walks (no separate pass over the volumes).
-        disp_l = _tree.aggregate_rows_winners(left_rows, left_layout, min_disp=int(min_disp))
         if right_rows is not None:
-            disp_r = _tree.aggregate_rows_winners(right_rows, right_layout, min_disp=int(min_disp))
+            disp_l, disp_r = _tree.aggregate_two_rows_winners(left_rows, left_layout, right_rows, right_layout,
+                                                              min_disp=int(min_disp))
+        else:
+            disp_l = _tree.aggregate_rows_winners(left_rows, left_layout, min_disp=int(min_disp))
     if right_rows is None:
         with timer("wta"):
             support = _tree.aggregate(np.ones((h, w, 1), np.float32), left_tree)[:, :, 0]

@@ -33,7 +33,8 @@ from .errors import ImageReadError, OptionError
 from .winner import subpixel_winner
 
 __all__ = ["MinimumSpanningTree", "TreeLayout", "build_tree", "build_trees", "tree_layout", "aggregate",
-           "aggregate_winners", "aggregate_rows_winners", "distance_rows_winners"]
+           "aggregate_winners", "aggregate_rows_winners", "aggregate_two_rows_winners",
+           "distance_rows_winners"]
 
 # Scale of a uint16 difference to 8-bit units: 65535 / 257 == 255.
 _UINT16_TO_8BIT = 1.0 / 257.0
@@ -427,6 +428,19 @@ def _aggregate_serial(cost, levels, order, parent, weight, out, winners, min_dis
     _downward_range(order, parent, weight, out, 1, node_count, winners, min_disp)
 
 
+@njit(cache=True, parallel=True)
+def _aggregate_pair(first, first_order, first_parent, first_weight, second, second_order, second_parent,
+                    second_weight, winners, min_disp):
+    """Two independent serial walks, one per thread (numba's own: threads of another pool
+    would compete with numba's, which spin a while after each parallel kernel)."""
+    for part in prange(2):
+        if part == 0:
+            _aggregate_serial(first, None, first_order, first_parent, first_weight, first, winners[0], min_disp)
+        else:
+            _aggregate_serial(second, None, second_order, second_parent, second_weight, second, winners[1],
+                              min_disp)
+
+
 @njit(cache=True)
 def _balanced_subtree(order, parent):
     """Order position of the non-root node whose subtree is closest to half the tree."""
@@ -764,6 +778,45 @@ def aggregate_rows_winners(volume: np.ndarray, layout: TreeLayout, *, min_disp: 
     if volume.size:
         _walk(volume, layout.rows, layout.parent_row, layout.weight_row, volume, winners, int(min_disp))
     return winners[layout.row_of_pixel].reshape(layout.height, layout.width)
+
+
+def aggregate_two_rows_winners(first: np.ndarray, first_layout: TreeLayout, second: np.ndarray,
+                               second_layout: TreeLayout, *, min_disp: int) -> tuple:
+    """:func:`aggregate_rows_winners` for two independent volumes, each walked on one thread.
+
+    Two views' volumes on their own trees (Yang's left-right check) do not depend on each
+    other, so each gets the serial walk on one of numba's threads, instead of one after
+    the other with each split between two threads: on two cores the split walks share
+    the cores and the memory bandwidth anyway, and pay the split's bookkeeping (Teddy's
+    pair inside a Hybrid decode: 32 -> 27 ms, docs/performance.md).  The serial walk
+    sums in plain tree order, so a value can differ from the split walk's in the last bit.
+
+    Parameters
+    ----------
+    first, second : numpy.ndarray
+        float32 C-contiguous ``(N, D)`` volumes in their layouts' row order, aggregated in
+        place.
+    first_layout, second_layout : TreeLayout
+    min_disp : int, keyword-only
+
+    Returns
+    -------
+    (numpy.ndarray, numpy.ndarray)
+        float32 ``(H, W)`` disparity of each volume, in pixel order.
+    """
+    _check_rows(first, first_layout)
+    _check_rows(second, second_layout)
+    node_count = first_layout.height * first_layout.width
+    if (numba.get_num_threads() < 2 or node_count < _PARALLEL_MIN_NODES or second.shape != first.shape
+            or first.size == 0):
+        # (Below the split's size aggregate_rows_winners walks serially too.)
+        return (aggregate_rows_winners(first, first_layout, min_disp=min_disp),
+                aggregate_rows_winners(second, second_layout, min_disp=min_disp))
+    winners = np.empty((2, node_count), dtype=np.float32)
+    _aggregate_pair(first, first_layout.rows, first_layout.parent_row, first_layout.weight_row, second,
+                    second_layout.rows, second_layout.parent_row, second_layout.weight_row, winners, int(min_disp))
+    return tuple(w[lay.row_of_pixel].reshape(lay.height, lay.width)
+                 for w, lay in zip(winners, (first_layout, second_layout)))
 
 
 def distance_rows_winners(levels: np.ndarray, layout: TreeLayout, *, min_disp: int, out: np.ndarray) -> np.ndarray:

@@ -17,8 +17,8 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from stereobudget.errors import ImageReadError, OptionError
-from stereobudget.tree import (MinimumSpanningTree, aggregate, aggregate_rows_winners, aggregate_winners, build_trees,
-                               build_tree, distance_rows_winners, tree_layout)
+from stereobudget.tree import (MinimumSpanningTree, aggregate, aggregate_rows_winners, aggregate_two_rows_winners,
+                               aggregate_winners, build_trees, build_tree, distance_rows_winners, tree_layout)
 from stereobudget.winner import winner_take_all
 import stereobudget.tree as tree_module
 
@@ -341,6 +341,25 @@ def test_walk_over_the_depth_first_row_layout_is_bit_identical(shape):
     assert np.array_equal(aggregate_rows_winners(rows, layout, min_disp=2), expected)
     # The rows are aggregated in place, each equal to its pixel's aggregate.
     assert np.array_equal(rows, aggregate(cost, tree).reshape(-1, 7)[tree.order])
+
+
+@pytest.mark.parametrize("shape", [(12, 13), (140, 150)])  # sequential, and one walk per thread
+def test_two_independent_walks_equal_the_serial_walk_of_each(shape):
+    first_tree, first = smooth_tree_and_cost(shape, 6, seed=25)
+    second_tree, second = smooth_tree_and_cost(shape, 6, seed=26)
+    layouts = tree_layout(first_tree), tree_layout(second_tree)
+    rows = [np.ascontiguousarray(c.reshape(-1, 6)[t.order]) for c, t in ((first, first_tree), (second, second_tree))]
+    expected = []
+    for volume, tree in ((first, first_tree), (second, second_tree)):
+        serial = np.empty((tree.size, 6), np.float32)
+        winners = np.empty(tree.size, np.float32)
+        tree_module._aggregate_serial(volume.reshape(-1, 6), None, tree.order, tree.parent, tree.weight, serial,
+                                      winners, -2)
+        expected.append(winners.reshape(shape))
+    got = aggregate_two_rows_winners(rows[0], layouts[0], rows[1], layouts[1], min_disp=-2)
+    assert np.array_equal(got[0], expected[0]) and np.array_equal(got[1], expected[1])
+    with pytest.raises(ValueError, match="rows"):
+        aggregate_two_rows_winners(rows[0][:-1], layouts[0], rows[1], layouts[1], min_disp=-2)
 
 
 @pytest.mark.parametrize("shape", [(12, 13), (140, 150)])  # the serial walk and the two-thread split
