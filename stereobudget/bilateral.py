@@ -450,22 +450,43 @@ def _left_step(guide, y, x, step_spacing, step_weight):
 
 
 @njit(cache=True, inline="always")
-def _splat_cost(grid_val, band_w, occupied, y0, ty, x0, tx, z0, tz, layer, cost):
-    """Add ``cost`` with its 8 trilinear weights into layer ``layer`` of ``grid_val``, and the
-    weights into ``band_w`` where the cell lies in the band (x-cells below its width)."""
-    band_n = band_w.shape[1]
+def _corner_weights(ty, tx, tz, weights):
+    """The 8 trilinear hat weights of a point, in the corner order of :func:`_splat_cost`."""
+    c = 0
     for a in range(2):
         wy = ty if a else 1 - ty
         for b in range(2):
             wx = tx if b else 1 - tx
-            for c in range(2):
-                wz = tz if c else 1 - tz
-                wgt = wy * wx * wz
-                grid_val[y0 + a, x0 + b, z0 + c, layer] += wgt * cost
-                # Every thread writes the same True: a benign overlap.
-                occupied[y0 + a, x0 + b, z0 + c] = True
-                if x0 + b < band_n:
-                    band_w[y0 + a, x0 + b, z0 + c, layer] += wgt
+            for e in range(2):
+                wz = tz if e else 1 - tz
+                weights[c] = wy * wx * wz
+                c += 1
+
+
+@njit(cache=True, inline="always")
+def _mark_occupied(occupied, y0, x0, z0):
+    """Flag the 8 cells around a splatted point (every thread writes the same True: benign)."""
+    for a in range(2):
+        for b in range(2):
+            for e in range(2):
+                occupied[y0 + a, x0 + b, z0 + e] = True
+
+
+@njit(cache=True, inline="always")
+def _splat_cost(grid_val, band_w, y0, x0, z0, weights, layer, cost):
+    """Add ``cost`` with its 8 corner ``weights`` (:func:`_corner_weights`) into layer ``layer``
+    of ``grid_val``, and the weights into ``band_w`` where the cell lies in the band (x-cells
+    below its width).  The cells must be flagged with :func:`_mark_occupied`."""
+    band_n = band_w.shape[1]
+    c = 0
+    for a in range(2):
+        for b in range(2):
+            in_band = x0 + b < band_n
+            for e in range(2):
+                grid_val[y0 + a, x0 + b, z0 + e, layer] += weights[c] * cost
+                if in_band:
+                    band_w[y0 + a, x0 + b, z0 + e, layer] += weights[c]
+                c += 1
 
 
 @njit(cache=True, parallel=True)
@@ -488,6 +509,7 @@ def _splat_sparse_dsi_split(rows, cols, right_values, right_steps, left, guide, 
     blocks = max(1, min(blocks, num_disp))
     for block in prange(blocks):
         first, last = _layer_block(block, blocks, num_disp)
+        weights = np.empty(8, dtype=np.float64)
         for k in range(rows.shape[0]):
             y = rows[k]
             y0, ty = _hat(y * inv_cs, gy_n)
@@ -500,7 +522,9 @@ def _splat_sparse_dsi_split(rows, cols, right_values, right_steps, left, guide, 
                                         step_weight, step_truncation)
                 x0, tx = _hat(x * inv_cs, gx_n)
                 z0, tz = _hat(guide[y, x] * inv_cr, gz_n)
-                _splat_cost(grid_val, band_w, occupied, y0, ty, x0, tx, z0, tz, i, cost)
+                _corner_weights(ty, tx, tz, weights)
+                _mark_occupied(occupied, y0, x0, z0)
+                _splat_cost(grid_val, band_w, y0, x0, z0, weights, i, cost)
 
 
 @njit(cache=True, parallel=True)
@@ -522,6 +546,7 @@ def _splat_lattice_dsi(sample_rows, offset_x, stride, n_cols, right_values, righ
     blocks = max(1, min(blocks, num_disp))
     for block in prange(blocks):
         first, last = _layer_block(block, blocks, num_disp)
+        weights = np.empty(8, dtype=np.float64)
         for r in range(sample_rows.shape[0]):
             y = sample_rows[r]
             y0, ty = _hat(y * inv_cs, gy_n)
@@ -534,11 +559,13 @@ def _splat_lattice_dsi(sample_rows, offset_x, stride, n_cols, right_values, righ
                 left_step = _left_step(guide, y, x, step_spacing, step_weight)
                 x0, tx = _hat(x * inv_cs, gx_n)
                 z0, tz = _hat(guide[y, x] * inv_cr, gz_n)
+                _corner_weights(ty, tx, tz, weights)
+                _mark_occupied(occupied, y0, x0, z0)
                 for i in range(i_first, i_max + 1, stride):
                     k = r * n_cols + (reach - i) // stride
                     cost = sparse_pair_cost(left[y, x], right_values[k], left_step, right_steps[k], truncation,
                                             step_weight, step_truncation)
-                    _splat_cost(grid_val, band_w, occupied, y0, ty, x0, tx, z0, tz, i, cost)
+                    _splat_cost(grid_val, band_w, y0, x0, z0, weights, i, cost)
 
 
 @njit(cache=True)
