@@ -88,8 +88,9 @@ class TreeLayout:
     fetching each pixel's row from a data-dependent address: on Teddy the aggregation
     takes about half the time of the same walk over a pixel-ordered volume
     (docs/performance.md).  Every volume a decoder aggregates is written in this order by
-    the kernel that produces it: Sparse's fill, both views' costs
-    (:func:`stereobudget.volumes.pair_cost_rows`) and the refinement cost.
+    the kernel that produces it: Sparse's fill and both views' costs
+    (:func:`stereobudget.volumes.pair_cost_rows`); the refinement cost is computed by the
+    walk itself, row by row in this order (:func:`distance_rows_winners`).
 
     Attributes
     ----------
