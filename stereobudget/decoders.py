@@ -28,6 +28,8 @@ from .container import SampleSet
 from .cost import DEFAULT_TRUNCATION, noise_level, sample_row_steps, to_float_image, to_gray
 from .sampling import grid_shape
 from .bilateral import filled_sparse_dsi, release_grids, sparse_dsi_grids
+from .lowpass import (_sample_values_f32, block_lowpass, gaussian_lowpass,  # noqa: F401  (re-exported)
+                      lowpass_interpolation, upsample_block_means)
 from .winner import subpixel_winner, winner_take_all  # noqa: F401  (re-exported for callers of decoders)
 from .errors import MismatchError, OptionError
 from . import scratch
@@ -214,11 +216,6 @@ def adapt_to_noise(params: DecoderParams, left: np.ndarray, *, method: str) -> D
     return replace(params, **changes)
 
 
-def _sample_values_f32(samples: SampleSet) -> np.ndarray:
-    """Sample values as float32 (n, C) RGB in 8-bit units."""
-    return to_float_image(samples.values_rgb()[:, None, :])[:, 0, :]
-
-
 def _stride(samples: SampleSet) -> float:
     return float(np.sqrt(samples.pattern.stride_x * samples.pattern.stride_y))
 
@@ -254,42 +251,6 @@ def _sparse_filled_cost(left_f, guide, samples, *, min_disp, num_disp, params, l
     args, kwargs = _sparse_fill_arguments(left_f, guide, samples, params)
     return filled_sparse_dsi(*args, min_disp=min_disp, num_disp=num_disp, **kwargs,
                              pixel_of_row=None if layout is None else layout.pixel_of_row)
-
-
-def lowpass_interpolation(samples: SampleSet, *, sigma: float) -> np.ndarray:
-    """Dense low-passed estimate of I2 from its samples: a normalised Gaussian convolution.
-
-    The samples (as impulses) and their mask are blurred with the same Gaussian and
-    divided, so interpolation and low-pass are one operation, for any sampling pattern.
-    Pixels with no sample within the kernel's reach (4 sigma) get 0.
-
-    Returns
-    -------
-    ndarray, float32 (H, W, C), 8-bit units
-    """
-    import cv2
-    rows, cols = samples.positions()
-    values = _sample_values_f32(samples).reshape(len(rows), -1)
-    channels = values.shape[1]
-    # Channels and mask blurred together: one pass over one interleaved image.
-    impulses = np.zeros((samples.height, samples.width, channels + 1), np.float32)
-    impulses[rows, cols, :channels] = values
-    impulses[rows, cols, channels] = 1.0
-    # Zero outside the frame for the values and the mask alike: the border stays unbiased.
-    blurred = cv2.GaussianBlur(impulses, (0, 0), sigmaX=sigma, sigmaY=sigma, borderType=cv2.BORDER_CONSTANT)
-    blurred = blurred.reshape(impulses.shape)
-    weight = blurred[..., channels]
-    # The kernel sums to 1, so the mask's blur is ~ the sample density where samples are.
-    reached = weight > np.float32(1e-4 * len(rows) / float(samples.height * samples.width))
-    # Unreached pixels divide by infinity (-> 0): one plain division, 2x faster than a masked one.
-    return blurred[..., :channels] / np.where(reached, weight, np.float32(np.inf))[..., None]
-
-
-def gaussian_lowpass(image_f32: np.ndarray, *, sigma: float) -> np.ndarray:
-    """Gaussian low-pass of a float32 (H, W, C) image, the same spectrum as :func:`lowpass_interpolation`."""
-    import cv2
-    out = cv2.GaussianBlur(image_f32, (0, 0), sigmaX=sigma, sigmaY=sigma, borderType=cv2.BORDER_REFLECT)
-    return out.reshape(image_f32.shape)
 
 
 def _decode_hybrid(left_f, guide, samples, tree_guide, *, min_disp, num_disp, params, timer):
@@ -337,46 +298,6 @@ def _decode_downsample(left_f, samples, tree_guide, *, min_disp, num_disp, param
     # From here on the upsampled pair is matched like any full pair (the tree stays I1's own).
     return full_pair_disparity(left_up, right_up, tree_guide=tree_guide, min_disp=min_disp, num_disp=num_disp,
                                params=params, timer=timer)
-
-
-def block_lowpass(image_f32: np.ndarray, sx: int, sy: int) -> np.ndarray:
-    """Give I1 the spectrum of upsampled block means, without their sampling.
-
-    The camera's block means are a box filter followed by subsampling; bilinear upsampling
-    is a triangle filter.  Convolving I1 with the same box and triangle, but never
-    subsampling it, matches the spectra while keeping I1 free of aliasing: re-sampling I1
-    on the camera's block grid would alias differently from I2 at every disparity that is
-    not a multiple of the block size (measured: Downsample at s = 5 falls from 29 % to
-    14 % bad pixels, mean of the four Middlebury scenes).
-    """
-    import cv2
-
-    def kernels(s):
-        # A centred box of width s: for even s, s + 1 taps with half weights at the ends
-        # (a plain even-length box would shift I1 by half a pixel against I2's block centres).
-        box = np.full(s + 1 - s % 2, 1.0 / s, np.float32)
-        if s % 2 == 0:
-            box[0] = box[-1] = 0.5 / s
-        tri = 1.0 - np.abs(np.arange(-s + 1, s, dtype=np.float32)) / s
-        return box, (tri / tri.sum()).astype(np.float32)
-
-    box_x, tri_x = kernels(sx)
-    box_y, tri_y = kernels(sy)
-    out = cv2.sepFilter2D(image_f32, -1, box_x, box_y, borderType=cv2.BORDER_REFLECT)
-    out = cv2.sepFilter2D(out, -1, tri_x, tri_y, borderType=cv2.BORDER_REFLECT)
-    return out.reshape(image_f32.shape)
-
-
-def upsample_block_means(low: np.ndarray, sx: int, sy: int, h: int, w: int) -> np.ndarray:
-    """Bilinear upsampling of (rows, cols, C) block means to a float32 (h, w, C) image, block centres aligned."""
-    import cv2
-    rows, cols = low.shape[:2]
-    ys = (np.arange(h, dtype=np.float32) - (sy - 1) / 2.0) / sy
-    xs = (np.arange(w, dtype=np.float32) - (sx - 1) / 2.0) / sx
-    map_x, map_y = np.meshgrid(xs, ys)
-    out = cv2.remap(np.ascontiguousarray(low, np.float32), map_x, map_y, interpolation=cv2.INTER_LINEAR,
-                    borderMode=cv2.BORDER_REPLICATE)
-    return out.reshape(h, w, low.shape[2])
 
 
 def _resolve_method(left, samples, *, method, params, min_disp, max_disp):
