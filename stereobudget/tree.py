@@ -271,17 +271,22 @@ def _kruskal_tree_bits(sorted_edges, height, width):
 
 
 @njit(cache=True, nogil=True)
-def _depth_first(bits, keys, height, width, root):
-    """Root the tree: depth-first pre-order, parents and the key of each node's parent edge.
+def _depth_first(bits, keys, height, width, root, similarity_of_key):
+    """Root the tree: depth-first pre-order, parents and edge similarities, and the row layout.
 
     Pre-order (rather than breadth-first) makes a node's parent usually the node just
     before it and keeps every subtree contiguous in ``order``, which is what lets
-    :func:`aggregate` stay in cache and split the walk between threads.
+    :func:`aggregate` stay in cache and split the walk between threads.  The
+    :class:`TreeLayout` arrays are written as the nodes are visited (a parent's row is
+    known before its children are popped), which saves a pass over the tree.
     """
     node_count = height * width
     order = np.empty(node_count, dtype=np.int32)
     parent = np.full(node_count, -1, dtype=np.int32)
-    parent_key = np.zeros(node_count, dtype=keys.dtype)
+    weight = np.zeros(node_count, dtype=np.float32)
+    row_of_pixel = np.empty(node_count, dtype=np.int64)
+    parent_row = np.empty(node_count, dtype=np.int32)
+    weight_row = np.empty(node_count, dtype=np.float32)
     stack = np.empty(node_count, dtype=np.int32)
     stack[0] = root
     top = 1
@@ -290,6 +295,10 @@ def _depth_first(bits, keys, height, width, root):
         top -= 1
         p = stack[top]
         order[visited] = p
+        row_of_pixel[p] = visited
+        above = parent[p]
+        parent_row[visited] = row_of_pixel[above] if above >= 0 else -1
+        weight_row[visited] = weight[p]
         visited += 1
         b = bits[p]
         for direction in range(4):
@@ -307,13 +316,13 @@ def _depth_first(bits, keys, height, width, root):
             else:
                 q = p - width
                 key = keys[2 * q + 1]
-            if q == parent[p]:
+            if q == above:
                 continue
             parent[q] = p
-            parent_key[q] = key
+            weight[q] = similarity_of_key[key]
             stack[top] = q
             top += 1
-    return order, parent, parent_key, visited
+    return order, parent, weight, row_of_pixel, parent_row, weight_row, visited
 
 
 @njit(cache=True, inline="always")
@@ -528,7 +537,7 @@ def _aggregate_two_threads(cost, levels, order, parent, weight, out, winners, mi
 
 
 @njit(cache=True, nogil=True)
-def _rooted_tree(image, key_count):
+def _rooted_tree(image, key_count, similarity_of_key):
     """Edge keys -> counting sort -> Kruskal -> depth-first rooting at pixel 0, in one kernel
     (one compiled object to load instead of four: ~10 ms each for a single-shot decode)."""
     height, width = image.shape[0], image.shape[1]
@@ -536,7 +545,7 @@ def _rooted_tree(image, key_count):
     _edge_keys(image, keys)
     sorted_edges = _counting_sorted_edges(keys, height, width, key_count)
     bits = _kruskal_tree_bits(sorted_edges, height, width)
-    return _depth_first(bits, keys, height, width, 0)
+    return _depth_first(bits, keys, height, width, 0, similarity_of_key)
 
 
 # --------------------------------------------------------------------------------------
@@ -586,14 +595,17 @@ def build_tree(guide: np.ndarray, *, sigma: float = 0.1 * 255, median_size: int 
         image = np.clip(np.rint(image * np.float32(257.0)), 0, 65535).astype(np.uint16)
     key_count = 256 if image.dtype == np.uint8 else 65536
     key_scale = _UINT16_TO_8BIT if image.dtype == np.uint16 else 1.0
-    order, parent, parent_key, reached = _rooted_tree(image, key_count)
-    if reached != node_count:  # a spanning tree of a grid always reaches every pixel
-        raise AssertionError(f"spanning tree reached {reached} of {node_count} pixels")
     # One exp per possible key instead of one per pixel.
     similarity_of_key = np.exp(np.arange(key_count) * (-key_scale / sigma)).astype(np.float32)
-    weight = similarity_of_key[parent_key]
-    weight[order[0]] = 0.0
-    return MinimumSpanningTree(order=order, parent=parent, weight=weight, height=height, width=width)
+    order, parent, weight, row_of_pixel, parent_row, weight_row, reached = _rooted_tree(
+        image, key_count, similarity_of_key)
+    if reached != node_count:  # a spanning tree of a grid always reaches every pixel
+        raise AssertionError(f"spanning tree reached {reached} of {node_count} pixels")
+    tree = MinimumSpanningTree(order=order, parent=parent, weight=weight, height=height, width=width)
+    tree._layout.append(TreeLayout(pixel_of_row=order, row_of_pixel=row_of_pixel,
+                                   rows=np.arange(node_count, dtype=np.int32), parent_row=parent_row,
+                                   weight_row=weight_row, height=height, width=width))
+    return tree
 
 
 def aggregate(cost: np.ndarray, tree: MinimumSpanningTree, *, out: np.ndarray | None = None) -> np.ndarray:
@@ -692,33 +704,21 @@ def _walk(cost, order, parent, weight, out, winners, min_disp, *, levels=None):
         _aggregate_two_threads(cost, levels, order, parent, weight, out, winners, min_disp)
 
 
-@njit(cache=True, nogil=True)
-def _layout_arrays(order, parent, weight):
-    node_count = order.shape[0]
-    row_of_pixel = np.empty(node_count, dtype=np.int64)
-    rows = np.empty(node_count, dtype=np.int32)
-    parent_row = np.empty(node_count, dtype=np.int32)
-    weight_row = np.empty(node_count, dtype=np.float32)
-    for k in range(node_count):
-        v = order[k]
-        row_of_pixel[v] = k
-        rows[k] = k
-        # Pre-order: a parent's row is assigned before its children's.
-        parent_row[k] = row_of_pixel[parent[v]] if parent[v] >= 0 else -1
-        weight_row[k] = weight[v]
-    return row_of_pixel, rows, parent_row, weight_row
-
-
 def tree_layout(tree: MinimumSpanningTree) -> TreeLayout:
     """The depth-first row layout of ``tree`` (see :class:`TreeLayout`).
 
-    One O(N) pass on first use; the layout is kept with the tree, so the cost volume's
-    producer and the refinement share it.
+    :func:`build_tree` makes it with the tree; a tree built otherwise gets it here, once,
+    and keeps it, so the cost volume's producer and the refinement share it.
     """
     if not tree._layout:
-        row_of_pixel, rows, parent_row, weight_row = _layout_arrays(tree.order, tree.parent, tree.weight)
-        tree._layout.append(TreeLayout(pixel_of_row=tree.order, row_of_pixel=row_of_pixel, rows=rows,
-                                       parent_row=parent_row, weight_row=weight_row, height=tree.height,
+        node_count = tree.order.shape[0]
+        row_of_pixel = np.empty(node_count, dtype=np.int64)
+        row_of_pixel[tree.order] = np.arange(node_count)
+        parents = tree.parent[tree.order]
+        parent_row = np.where(parents >= 0, row_of_pixel[np.maximum(parents, 0)], -1).astype(np.int32)
+        tree._layout.append(TreeLayout(pixel_of_row=tree.order, row_of_pixel=row_of_pixel,
+                                       rows=np.arange(node_count, dtype=np.int32), parent_row=parent_row,
+                                       weight_row=tree.weight[tree.order], height=tree.height,
                                        width=tree.width))
     return tree._layout[0]
 
@@ -743,9 +743,7 @@ def build_trees(guides, *, sigma: float = 0.1 * 255, median_size: int = 3) -> li
         In the order of ``guides``.
     """
     def build(guide):
-        tree = build_tree(guide, sigma=sigma, median_size=median_size)
-        tree_layout(tree)
-        return tree
+        return build_tree(guide, sigma=sigma, median_size=median_size)
 
     guides = list(guides)
     if len(guides) < 2 or numba.get_num_threads() < 2:

@@ -343,6 +343,19 @@ def test_walk_over_the_depth_first_row_layout_is_bit_identical(shape):
     assert np.array_equal(rows, aggregate(cost, tree).reshape(-1, 7)[tree.order])
 
 
+def test_layout_of_a_tree_built_elsewhere_equals_the_one_made_with_the_tree():
+    tree, _ = smooth_tree_and_cost((40, 50), 3, seed=5)
+    made = tree_layout(tree)
+    bare = MinimumSpanningTree(order=tree.order, parent=tree.parent, weight=tree.weight, height=tree.height,
+                               width=tree.width)
+    derived = tree_layout(bare)
+    for name in ("pixel_of_row", "row_of_pixel", "rows", "parent_row", "weight_row"):
+        assert getattr(derived, name).dtype == getattr(made, name).dtype, name
+        assert np.array_equal(getattr(derived, name), getattr(made, name)), name
+    assert made.weight_row[0] == 0 and np.array_equal(made.weight_row, tree.weight[tree.order])
+    assert tree_layout(bare) is derived  # kept with the tree
+
+
 @pytest.mark.parametrize("shape", [(12, 13), (140, 150)])  # sequential, and one walk per thread
 def test_two_independent_walks_equal_the_serial_walk_of_each(shape):
     first_tree, first = smooth_tree_and_cost(shape, 6, seed=25)
