@@ -166,59 +166,56 @@ def _median_filtered(guide: np.ndarray, median_size: int) -> np.ndarray:
 
 @njit(cache=True, nogil=True)
 def _edge_keys(image, keys):
-    """Max absolute channel difference of each grid edge, in the guide's own units.
+    """Max absolute channel difference of each grid edge, in the guide's own integer units.
 
     Edge ``2 * p`` joins pixel ``p`` to its right neighbour, edge ``2 * p + 1`` to the
-    pixel below.  Edges leaving the grid keep key 0 and are never used.
+    pixel below.  Edges leaving the grid keep key 0 and are never used.  ``image`` is
+    uint8 or uint16, so the differences are exact in int32.
     """
     height, width, channels = image.shape
     for r in range(height):
         for c in range(width):
             p = r * width + c
-            if c + 1 < width:
-                largest = 0.0
-                for k in range(channels):
-                    diff = abs(float(image[r, c, k]) - float(image[r, c + 1, k]))
-                    if diff > largest:
-                        largest = diff
-                keys[2 * p] = largest
-            else:
-                keys[2 * p] = 0
-            if r + 1 < height:
-                largest = 0.0
-                for k in range(channels):
-                    diff = abs(float(image[r, c, k]) - float(image[r + 1, c, k]))
-                    if diff > largest:
-                        largest = diff
-                keys[2 * p + 1] = largest
-            else:
-                keys[2 * p + 1] = 0
+            largest_right = 0
+            largest_below = 0
+            for k in range(channels):
+                value = np.int32(image[r, c, k])
+                if c + 1 < width:
+                    largest_right = max(largest_right, abs(value - np.int32(image[r, c + 1, k])))
+                if r + 1 < height:
+                    largest_below = max(largest_below, abs(value - np.int32(image[r + 1, c, k])))
+            keys[2 * p] = largest_right
+            keys[2 * p + 1] = largest_below
 
 
 @njit(cache=True, nogil=True)
 def _counting_sorted_edges(keys, height, width, key_count):
     """Grid edge ids sorted by integer key; stable, so ties keep edge-id order."""
-    counts = np.zeros(key_count + 1, dtype=np.int64)
-    for p in range(height * width):
-        c = p % width
-        if c + 1 < width:
-            counts[keys[2 * p] + 1] += 1
-        if p + width < height * width:
-            counts[keys[2 * p + 1] + 1] += 1
+    # Row and column loops rather than p % width per pixel: the division was ~30 % of the sort.
+    counts = np.zeros(key_count + 1, dtype=np.int32)
+    for r in range(height):
+        base = r * width
+        for c in range(width - 1):
+            counts[keys[2 * (base + c)] + 1] += 1
+        if r + 1 < height:
+            for c in range(width):
+                counts[keys[2 * (base + c) + 1] + 1] += 1
     for k in range(key_count):
         counts[k + 1] += counts[k]
     edge_count = height * (width - 1) + (height - 1) * width
     sorted_edges = np.empty(edge_count, dtype=np.int32)
-    for p in range(height * width):
-        c = p % width
-        if c + 1 < width:
-            key = keys[2 * p]
-            sorted_edges[counts[key]] = 2 * p
-            counts[key] += 1
-        if p + width < height * width:
-            key = keys[2 * p + 1]
-            sorted_edges[counts[key]] = 2 * p + 1
-            counts[key] += 1
+    for r in range(height):
+        has_below = r + 1 < height
+        for c in range(width):
+            p = r * width + c
+            if c + 1 < width:
+                key = keys[2 * p]
+                sorted_edges[counts[key]] = 2 * p
+                counts[key] += 1
+            if has_below:
+                key = keys[2 * p + 1]
+                sorted_edges[counts[key]] = 2 * p + 1
+                counts[key] += 1
     return sorted_edges
 
 
