@@ -359,6 +359,8 @@ def decode(left: np.ndarray, samples: SampleSet, *, max_disp: int, min_disp: int
         The estimate (:func:`stereobudget.limits.estimate_decode_memory`) exceeds
         ``max_memory``; checked before any volume is allocated.
     """
+    # Each decode's temporaries are the next one's: keep them mapped (no page faults).
+    scratch.keep_freed_memory()
     method, params = _resolve_method(left, samples, method=method, params=params,
                                      min_disp=min_disp, max_disp=max_disp)
     overlap = DEFAULT_TILE_OVERLAP if tile_overlap is None else int(tile_overlap)

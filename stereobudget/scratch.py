@@ -7,10 +7,16 @@ frames, a dask worker, an embedding application) give their cost volumes back he
 they are done, and the next decode of the same size takes them instead of new memory.
 At most :data:`SPARE_BYTES` are kept; :func:`release` drops them.  A single decode in a
 fresh process (one ``sb-decode`` call) gains nothing and loses nothing.
+
+The smaller temporaries (trees, grids, keys: ~2000 pages a Hybrid decode of Teddy) are
+kept mapped by the C allocator instead (:func:`keep_freed_memory`).
 """
 
 from __future__ import annotations
 
+import ctypes
+import os
+import sys
 import threading
 
 import numpy as np
@@ -20,6 +26,46 @@ SPARE_BYTES = 256 * 2 ** 20
 
 _lock = threading.Lock()
 _spare: list = []
+_malloc_tuned: list = []
+
+# glibc's mallopt parameters (malloc.h) and the largest mmap threshold it accepts on 64-bit.
+_M_TRIM_THRESHOLD = -1
+_M_MMAP_THRESHOLD = -3
+_MMAP_THRESHOLD_MAX = 32 * 2 ** 20
+
+
+def keep_freed_memory() -> bool:
+    """Let the C allocator keep freed blocks of up to 32 MiB mapped, for the next decode.
+
+    glibc returns large freed blocks to the system, so the next decode's arrays are
+    fresh pages that fault on first touch (~2000 faults and 5-15 ms per Hybrid decode of
+    Teddy on the benchmark machine, docs/performance.md).  This raises glibc's mmap
+    threshold to its maximum and its trim threshold to :data:`SPARE_BYTES`, so blocks are
+    reused instead; the process keeps up to that much freed memory.  Called by
+    :func:`stereobudget.decode`; set ``STEREOBUDGET_KEEP_FREED_MEMORY=0`` to leave the
+    allocator alone.  Elsewhere than Linux it does nothing.
+
+    Returns
+    -------
+    bool
+        Whether the allocator was tuned (by this call or an earlier one).
+    """
+    if _malloc_tuned:
+        return _malloc_tuned[0]
+    with _lock:
+        if not _malloc_tuned:
+            tuned = False
+            if sys.platform.startswith("linux") and os.environ.get("STEREOBUDGET_KEEP_FREED_MEMORY", "1") != "0":
+                try:
+                    mallopt = ctypes.CDLL(None).mallopt
+                    # Both or neither: a trim threshold alone turns off glibc's adaptive mmap
+                    # threshold, and every block is then mapped afresh (7x the faults).
+                    tuned = bool(mallopt(_M_MMAP_THRESHOLD, _MMAP_THRESHOLD_MAX)) and bool(
+                        mallopt(_M_TRIM_THRESHOLD, SPARE_BYTES))
+                except (OSError, AttributeError):
+                    tuned = False
+            _malloc_tuned.append(tuned)
+    return _malloc_tuned[0]
 
 
 def empty_volume(shape) -> np.ndarray:
@@ -73,6 +119,12 @@ def recycle(*volumes) -> None:
 
 
 def release() -> None:
-    """Drop every spare volume (their memory returns to the allocator)."""
+    """Drop every spare volume; with :func:`keep_freed_memory` in force, also hand the
+    allocator's free memory back to the system."""
     with _lock:
         _spare.clear()
+    if _malloc_tuned and _malloc_tuned[0]:
+        try:
+            ctypes.CDLL(None).malloc_trim(0)
+        except (OSError, AttributeError):
+            pass

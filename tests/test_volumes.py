@@ -1,5 +1,9 @@
 """Both views' cost volumes in their trees' row layouts (stereobudget.volumes)."""
 
+import os
+import subprocess
+import sys
+
 import numpy as np
 import pytest
 
@@ -115,3 +119,33 @@ def test_decodes_in_one_process_give_the_same_disparity_with_recycled_volumes():
         second = stereobudget.decode(scene.left, samples, max_disp=12, method=method).disparity
         np.testing.assert_array_equal(first, second)
     scratch.release()
+
+
+_FAULTS_OF_A_SECOND_DECODE = """
+import resource
+import numpy as np
+import stereobudget
+from stereobudget.container import encode_image
+from stereobudget.sampling import SamplingPattern
+from stereobudget.scenes import make_scene
+scene = make_scene("planes", height=240, width=320, seed=1)
+samples = encode_image(scene.right, pattern=SamplingPattern("grid", 5, 5))
+stereobudget.decode(scene.left, samples, max_disp=scene.max_disp, method="hybrid")
+before = resource.getrusage(resource.RUSAGE_SELF).ru_minflt
+stereobudget.decode(scene.left, samples, max_disp=scene.max_disp, method="hybrid")
+print(resource.getrusage(resource.RUSAGE_SELF).ru_minflt - before, stereobudget.scratch.keep_freed_memory())
+"""
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="tunes glibc's allocator; Linux only")
+def test_kept_freed_memory_spares_the_next_decode_its_page_faults():
+    def run(keep):
+        env = dict(os.environ, STEREOBUDGET_KEEP_FREED_MEMORY="1" if keep else "0")
+        out = subprocess.run([sys.executable, "-c", _FAULTS_OF_A_SECOND_DECODE], env=env, check=True,
+                             capture_output=True, text=True).stdout.split()
+        return int(out[0]), out[1] == "True"
+    kept_faults, tuned = run(True)
+    plain_faults, untouched = run(False)
+    assert tuned and not untouched
+    # Without it, glibc maps the bigger temporaries afresh on every decode.
+    assert kept_faults < plain_faults / 2, (kept_faults, plain_faults)
