@@ -492,20 +492,34 @@ def _mark_occupied(occupied, y0, x0, z0):
 
 
 @njit(cache=True, inline="always")
-def _splat_cost(grid_val, band_w, y0, x0, z0, weights, layer, cost):
-    """Add ``cost`` with its 8 corner ``weights`` (:func:`_corner_weights`) into layer ``layer``
-    of ``grid_val``, and the weights into ``band_w`` where the cell lies in the band (x-cells
-    below its width).  The cells must be flagged with :func:`_mark_occupied`."""
-    band_n = band_w.shape[1]
+def _corner_offsets(y0, x0, z0, gx_n, gz_n, band_n, num_disp, offsets, band_offsets):
+    """Flat offsets of layer 0 of the 8 cells around a point, in the corner order of
+    :func:`_corner_weights`: in the (GY, GX, GZ, K) value grid, and in the (GY, band, GZ, K)
+    band grid (-1 where the cell is right of the band).  Unsigned, so the adds of
+    :func:`_splat_cost` index without numba's negative-index checks."""
     c = 0
     for a in range(2):
         for b in range(2):
-            in_band = x0 + b < band_n
             for e in range(2):
-                grid_val[y0 + a, x0 + b, z0 + e, layer] += weights[c] * cost
-                if in_band:
-                    band_w[y0 + a, x0 + b, z0 + e, layer] += weights[c]
+                cell = ((y0 + a) * gx_n + (x0 + b)) * gz_n + (z0 + e)
+                offsets[c] = np.uint64(cell * num_disp)
+                if x0 + b < band_n:
+                    band_offsets[c] = (((y0 + a) * band_n + (x0 + b)) * gz_n + (z0 + e)) * num_disp
+                else:
+                    band_offsets[c] = -1
                 c += 1
+
+
+@njit(cache=True, inline="always")
+def _splat_cost(values_flat, band_flat, offsets, band_offsets, weights, layer, cost):
+    """Add ``cost`` with its 8 corner ``weights`` (:func:`_corner_weights`) into layer ``layer``
+    of the flat value grid, and the weights into the flat band grid where the cell lies in
+    the band (offsets from :func:`_corner_offsets`).  The cells must be flagged with
+    :func:`_mark_occupied`."""
+    for c in range(8):
+        values_flat[offsets[c] + np.uint64(layer)] += weights[c] * cost
+        if band_offsets[c] >= 0:
+            band_flat[np.uint64(band_offsets[c] + layer)] += weights[c]
 
 
 @njit(cache=True, parallel=True)
@@ -526,9 +540,14 @@ def _splat_sparse_dsi_split(rows, cols, right_values, right_steps, left, guide, 
     gy_n, gx_n, gz_n, num_disp = grid_val.shape
     w = left.shape[1]
     blocks = max(1, min(blocks, num_disp))
+    band_n = band_w.shape[1]
+    values_flat = grid_val.reshape(grid_val.size)
+    band_flat = band_w.reshape(band_w.size)
     for block in prange(blocks):
         first, last = _layer_block(block, blocks, num_disp)
         weights = np.empty(8, dtype=np.float64)
+        offsets = np.empty(8, dtype=np.uint64)
+        band_offsets = np.empty(8, dtype=np.int64)
         for k in range(rows.shape[0]):
             y = rows[k]
             y0, ty = _hat(y * inv_cs, gy_n)
@@ -543,7 +562,8 @@ def _splat_sparse_dsi_split(rows, cols, right_values, right_steps, left, guide, 
                 z0, tz = _hat(guide[y, x] * inv_cr, gz_n)
                 _corner_weights(ty, tx, tz, weights)
                 _mark_occupied(occupied, y0, x0, z0)
-                _splat_cost(grid_val, band_w, y0, x0, z0, weights, i, cost)
+                _corner_offsets(y0, x0, z0, gx_n, gz_n, band_n, num_disp, offsets, band_offsets)
+                _splat_cost(values_flat, band_flat, offsets, band_offsets, weights, i, cost)
 
 
 @njit(cache=True, parallel=True)
@@ -563,9 +583,14 @@ def _splat_lattice_dsi(sample_rows, offset_x, stride, n_cols, right_values, righ
     gy_n, gx_n, gz_n, num_disp = grid_val.shape
     w = left.shape[1]
     blocks = max(1, min(blocks, num_disp))
+    band_n = band_w.shape[1]
+    values_flat = grid_val.reshape(grid_val.size)
+    band_flat = band_w.reshape(band_w.size)
     for block in prange(blocks):
         first, last = _layer_block(block, blocks, num_disp)
         weights = np.empty(8, dtype=np.float64)
+        offsets = np.empty(8, dtype=np.uint64)
+        band_offsets = np.empty(8, dtype=np.int64)
         for r in range(sample_rows.shape[0]):
             y = sample_rows[r]
             y0, ty = _hat(y * inv_cs, gy_n)
@@ -580,11 +605,12 @@ def _splat_lattice_dsi(sample_rows, offset_x, stride, n_cols, right_values, righ
                 z0, tz = _hat(guide[y, x] * inv_cr, gz_n)
                 _corner_weights(ty, tx, tz, weights)
                 _mark_occupied(occupied, y0, x0, z0)
+                _corner_offsets(y0, x0, z0, gx_n, gz_n, band_n, num_disp, offsets, band_offsets)
                 for i in range(i_first, i_max + 1, stride):
                     k = r * n_cols + (reach - i) // stride
                     cost = sparse_pair_cost(left[y, x], right_values[k], left_step, right_steps[k], truncation,
                                             step_weight, step_truncation)
-                    _splat_cost(grid_val, band_w, y0, x0, z0, weights, i, cost)
+                    _splat_cost(values_flat, band_flat, offsets, band_offsets, weights, i, cost)
 
 
 @njit(cache=True)
