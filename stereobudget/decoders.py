@@ -28,6 +28,7 @@ from .container import SampleSet
 from .cost import DEFAULT_TRUNCATION, noise_level, sample_row_steps, to_float_image, to_gray
 from .sampling import grid_shape
 from .bilateral import filled_sparse_dsi, release_grids, sparse_dsi_grids
+from .limits import volume_layers
 from .lowpass import (_sample_values_f32, block_lowpass, gaussian_lowpass,  # noqa: F401  (re-exported)
                       lowpass_interpolation, upsample_block_means)
 from .winner import subpixel_winner, winner_take_all  # noqa: F401  (re-exported for callers of decoders)
@@ -256,12 +257,13 @@ def _sparse_filled_cost(left_f, guide, samples, *, min_disp, num_disp, params, l
 def _decode_hybrid(left_f, guide, samples, tree_guide, *, min_disp, num_disp, params, timer):
     from .refine import left_right_refined_rows, pair_trees
     from .volumes import pair_cost_rows
+    layers = volume_layers(num_disp)
     stride = _stride(samples)
     weight = params.hybrid_sparse_weight if params.hybrid_sparse_weight is not None else hybrid_weight(stride)
     with timer("jbf_fill"):
         # Splat and blur only: the grids are sliced pixel by pixel in the cost kernel below.
         args, kwargs = _sparse_fill_arguments(left_f, guide, samples, params)
-        grids = sparse_dsi_grids(*args, min_disp=min_disp, num_disp=num_disp, **kwargs)
+        grids = sparse_dsi_grids(*args, min_disp=min_disp, num_disp=layers, **kwargs)
     with timer("interpolate"):
         sigma = params.lowpass_per_stride * stride
         right_lp = lowpass_interpolation(samples, sigma=sigma)
@@ -274,14 +276,15 @@ def _decode_hybrid(left_f, guide, samples, tree_guide, *, min_disp, num_disp, pa
         # from the same rows (volumes.pair_cost_rows).
         dense_max = (1 - params.grad_weight) * params.full_truncation + params.grad_weight * params.grad_truncation
         left_rows, right_rows = pair_cost_rows(
-            left_lp, right_lp, min_disp=min_disp, num_disp=num_disp, truncation=params.full_truncation,
+            left_lp, right_lp, min_disp=min_disp, num_disp=layers, truncation=params.full_truncation,
             grad_weight=params.grad_weight, grad_truncation=params.grad_truncation, left_layout=left_layout,
             right_layout=right_layout, grids=grids, guide=guide,
             mix_weights=(weight / params.truncation, (1.0 - weight) / dense_max))
     release_grids(grids)
     del grids
     disp, _ = left_right_refined_rows(left_rows, right_rows, left_layout=left_layout, right_layout=right_layout,
-                                      left_tree=tree, min_disp=min_disp, params=params, timer=timer)
+                                      left_tree=tree, min_disp=min_disp, params=params, timer=timer,
+                                      num_disp=num_disp)
     scratch.recycle(left_rows, right_rows)
     return disp
 
@@ -399,10 +402,10 @@ def decode(left: np.ndarray, samples: SampleSet, *, max_disp: int, min_disp: int
             # The fill writes its volume in the tree's depth-first row order, so the
             # aggregation walk streams through it (half the time of a pixel-order walk).
             layout = _tree.tree_layout(tree)
-            cost = _sparse_filled_cost(left_f, guide, samples, min_disp=min_disp, num_disp=num_disp, params=params,
-                                       layout=layout)
+            cost = _sparse_filled_cost(left_f, guide, samples, min_disp=min_disp, num_disp=volume_layers(num_disp),
+                                       params=params, layout=layout)
         with timer("aggregate"):  # the winners are taken during the aggregation's walk
-            disp = _tree.aggregate_rows_winners(cost, layout, min_disp=int(min_disp))
+            disp = _tree.aggregate_rows_winners(cost, layout, min_disp=int(min_disp), num_disp=num_disp)
         scratch.recycle(cost)
         with timer("median"):
             disp = median_filter_disparity(disp, params.median_size)

@@ -24,9 +24,8 @@ from .winner import subpixel_winner
 
 
 @njit(cache=True, parallel=True)
-def _right_disparity_from_rows(aggregated, row_of_pixel, height, width, min_disp, support):
+def _right_disparity_from_rows(aggregated, row_of_pixel, height, width, min_disp, support, nd):
     out = np.empty((height, width), dtype=np.float32)
-    nd = aggregated.shape[1]
     for y in prange(height):
         diagonal = np.empty(nd, dtype=np.float32)
         for xr in range(width):
@@ -41,7 +40,7 @@ def _right_disparity_from_rows(aggregated, row_of_pixel, height, width, min_disp
     return out
 
 
-def right_disparity_from_left(aggregated, min_disp, support, *, layout=None):
+def right_disparity_from_left(aggregated, min_disp, support, *, layout=None, num_disp=None):
     """Right-view disparity read off the left view's aggregated costs (Hirschmüller's diagonal search).
 
     Right pixel ``xr`` at disparity ``d`` is left pixel ``xr + d``, so its cost at layer
@@ -63,6 +62,9 @@ def right_disparity_from_left(aggregated, min_disp, support, *, layout=None):
         The left tree's aggregate of a constant 1 (``aggregate(ones, tree)``).
     layout : stereobudget.tree.TreeLayout, optional
         Row layout of ``aggregated`` when it is given as rows.
+    num_disp : int, optional
+        Layers searched: the first ``num_disp`` (default: all; the rest are padding, see
+        :func:`stereobudget.limits.volume_layers`).
 
     Returns
     -------
@@ -76,8 +78,9 @@ def right_disparity_from_left(aggregated, min_disp, support, *, layout=None):
         row_of_pixel = np.arange(h * w, dtype=np.int64)
     else:
         rows, row_of_pixel = aggregated, layout.row_of_pixel
+    layers = rows.shape[1] if num_disp is None else int(num_disp)
     return _right_disparity_from_rows(rows, row_of_pixel, h, w, int(min_disp),
-                                      np.ascontiguousarray(support, np.float32))
+                                      np.ascontiguousarray(support, np.float32), layers)
 
 
 @njit(cache=True, parallel=True)
@@ -104,9 +107,10 @@ def nonlocal_refinement(disp: np.ndarray, stable: np.ndarray, tree, *, min_disp:
     stable : ndarray, bool (H, W)
     tree : stereobudget.tree.MinimumSpanningTree
         Tree of the left image.
-    out : ndarray, float32, C-contiguous with H * W * num_disp values, optional
+    out : ndarray, float32, C-contiguous (H * W, L) with L >= num_disp, optional
         Scratch volume for the aggregation (a dead cost volume can be recycled: reusing
         it saves the page faults of a fresh allocation); its contents are overwritten.
+        Layers past ``num_disp`` (padding) are aggregated too but never win.
         The refinement cost is never stored: the walk computes each row in the tree's row
         layout when it first reaches it (:func:`stereobudget.tree.distance_rows_winners`).
 
@@ -116,15 +120,15 @@ def nonlocal_refinement(disp: np.ndarray, stable: np.ndarray, tree, *, min_disp:
     """
     layout = _tree.tree_layout(tree)
     h, w = disp.shape
-    rows = np.empty((h * w, int(num_disp)), np.float32) if out is None else out.reshape(h * w, int(num_disp))
+    rows = np.empty((h * w, int(num_disp)), np.float32) if out is None else out.reshape(h * w, -1)
     # Yang's cost |d - D(q)| of the stable pixels (0 elsewhere) is computed by the walk
     # itself from each row's level, so it never takes a pass over the volume of its own.
     levels = np.where(stable, np.asarray(disp, np.float32), np.float32(np.nan)).reshape(-1)[layout.pixel_of_row]
-    return _tree.distance_rows_winners(levels, layout, min_disp=int(min_disp), out=rows)
+    return _tree.distance_rows_winners(levels, layout, min_disp=int(min_disp), out=rows, num_disp=int(num_disp))
 
 
 def left_right_refined_rows(left_rows, right_rows, *, left_layout, right_layout, left_tree, min_disp, params,
-                            timer):
+                            timer, num_disp=None):
     """Aggregate both views' costs, check the left view against the right, refine (Yang).
 
     Parameters
@@ -143,6 +147,9 @@ def left_right_refined_rows(left_rows, right_rows, *, left_layout, right_layout,
     params : stereobudget.decoders.DecoderParams
     timer : callable
         ``timer(stage)`` context manager that records stage times.
+    num_disp : int, optional
+        Disparities searched: the first ``num_disp`` layers (default: all ``D``; the rest
+        are padding, :func:`stereobudget.limits.volume_layers`).
 
     Returns
     -------
@@ -151,19 +158,20 @@ def left_right_refined_rows(left_rows, right_rows, *, left_layout, right_layout,
         Pixels that passed the left-right check.
     """
     from .decoders import median_filter_disparity
-    num_disp = left_rows.shape[1]
+    num_disp = left_rows.shape[1] if num_disp is None else int(num_disp)
     h, w = left_layout.height, left_layout.width
     with timer("aggregate"):
         # Winners are taken during the aggregation walks (no separate pass over the volumes).
         if right_rows is not None:
             disp_l, disp_r = _tree.aggregate_two_rows_winners(left_rows, left_layout, right_rows, right_layout,
-                                                              min_disp=int(min_disp))
+                                                              min_disp=int(min_disp), num_disp=num_disp)
         else:
-            disp_l = _tree.aggregate_rows_winners(left_rows, left_layout, min_disp=int(min_disp))
+            disp_l = _tree.aggregate_rows_winners(left_rows, left_layout, min_disp=int(min_disp), num_disp=num_disp)
     if right_rows is None:
         with timer("wta"):
             support = _tree.aggregate(np.ones((h, w, 1), np.float32), left_tree)[:, :, 0]
-            disp_r = right_disparity_from_left(left_rows, int(min_disp), support, layout=left_layout)
+            disp_r = right_disparity_from_left(left_rows, int(min_disp), support, layout=left_layout,
+                                               num_disp=num_disp)
     with timer("refine"):
         stable = left_right_stable(disp_l, disp_r, np.float32(1.0))
         # The left volume is dead after its winner was taken: it holds the refinement cost.
@@ -196,15 +204,17 @@ def full_pair_disparity(left_f, right_f, *, tree_guide, min_disp, num_disp, para
     built on ``tree_guide`` (I1 itself, also when ``left_f`` is a low-passed I1), the right
     tree on ``right_f``.
     """
+    from .limits import volume_layers
     from .volumes import pair_cost_rows
     with timer("tree"):
         tree, left_layout, right_layout = pair_trees(tree_guide, right_f, params=params)
     with timer("cost"):
-        left_rows, right_rows = pair_cost_rows(left_f, right_f, min_disp=min_disp, num_disp=num_disp,
+        left_rows, right_rows = pair_cost_rows(left_f, right_f, min_disp=min_disp, num_disp=volume_layers(num_disp),
                                                truncation=params.full_truncation, grad_weight=params.grad_weight,
                                                grad_truncation=params.grad_truncation, left_layout=left_layout,
                                                right_layout=right_layout)
     disp, _ = left_right_refined_rows(left_rows, right_rows, left_layout=left_layout, right_layout=right_layout,
-                                      left_tree=tree, min_disp=min_disp, params=params, timer=timer)
+                                      left_tree=tree, min_disp=min_disp, params=params, timer=timer,
+                                      num_disp=num_disp)
     scratch.recycle(left_rows, right_rows)
     return disp

@@ -397,11 +397,12 @@ def _make_ready(cost, levels, min_disp, out, ready, v):
 
 
 @njit(cache=True)
-def _downward_range(order, parent, weight, out, lo, hi, winners, min_disp):
+def _downward_range(order, parent, weight, out, lo, hi, winners, min_disp, competing):
     """Root-to-leaf pass over order positions ``[lo, hi)``; parents must be final already.
 
-    With a non-empty ``winners`` (float32 ``(N,)``) each node's winner is taken while its
-    final row is still in cache, which saves a separate pass over the volume.
+    With a non-empty ``winners`` (float32 ``(N,)``) each node's winner among its first
+    ``competing`` layers is taken while its final row is still in cache, which saves a
+    separate pass over the volume.
     """
     disparities = out.shape[1]
     take_winners = winners.shape[0] > 0
@@ -419,11 +420,11 @@ def _downward_range(order, parent, weight, out, lo, hi, winners, min_disp):
         for d in range(disparities):
             row[d] = s * above[d] + keep * row[d]
         if take_winners:
-            winners[v] = subpixel_winner(row, min_disp)
+            winners[v] = subpixel_winner(row[:competing], min_disp)
 
 
 @njit(cache=True)
-def _aggregate_serial(cost, levels, order, parent, weight, out, winners, min_disp):
+def _aggregate_serial(cost, levels, order, parent, weight, out, winners, min_disp, competing):
     """Both passes on one thread; ``cost``/``out`` are ``(N, D)`` float32, may alias
     (``levels``: see :func:`_upward_range`)."""
     node_count = order.shape[0]
@@ -431,21 +432,22 @@ def _aggregate_serial(cost, levels, order, parent, weight, out, winners, min_dis
     _upward_range(cost, levels, min_disp, order, parent, weight, out, ready, 1, node_count)
     _make_ready(cost, levels, min_disp, out, ready, order[0])
     if winners.shape[0] > 0:
-        winners[order[0]] = subpixel_winner(out[order[0]], min_disp)
-    _downward_range(order, parent, weight, out, 1, node_count, winners, min_disp)
+        winners[order[0]] = subpixel_winner(out[order[0]][:competing], min_disp)
+    _downward_range(order, parent, weight, out, 1, node_count, winners, min_disp, competing)
 
 
 @njit(cache=True, parallel=True)
 def _aggregate_pair(first, first_order, first_parent, first_weight, second, second_order, second_parent,
-                    second_weight, winners, min_disp):
+                    second_weight, winners, min_disp, competing):
     """Two independent serial walks, one per thread (numba's own: threads of another pool
     would compete with numba's, which spin a while after each parallel kernel)."""
     for part in prange(2):
         if part == 0:
-            _aggregate_serial(first, None, first_order, first_parent, first_weight, first, winners[0], min_disp)
+            _aggregate_serial(first, None, first_order, first_parent, first_weight, first, winners[0], min_disp,
+                              competing)
         else:
             _aggregate_serial(second, None, second_order, second_parent, second_weight, second, winners[1],
-                              min_disp)
+                              min_disp, competing)
 
 
 @njit(cache=True)
@@ -467,7 +469,7 @@ def _balanced_subtree(order, parent):
 
 
 @njit(cache=True, parallel=True)
-def _aggregate_two_threads(cost, levels, order, parent, weight, out, winners, min_disp):
+def _aggregate_two_threads(cost, levels, order, parent, weight, out, winners, min_disp, competing):
     """Both passes with the tree cut into a subtree A and the rest B, one thread each.
 
     In pre-order the subtree of the node at position ``a0`` is the contiguous range
@@ -518,7 +520,7 @@ def _aggregate_two_threads(cost, levels, order, parent, weight, out, winners, mi
 
     take_winners = winners.shape[0] > 0
     if take_winners:  # the root's upward sum, now including A's, is its final aggregate
-        winners[order[0]] = subpixel_winner(out[order[0]], min_disp)
+        winners[order[0]] = subpixel_winner(out[order[0]][:competing], min_disp)
     for part in prange(2):
         if part == 0:
             top_similarity = weight[top]
@@ -526,11 +528,11 @@ def _aggregate_two_threads(cost, levels, order, parent, weight, out, winners, mi
             for d in range(disparities):
                 total[d] = top_similarity * above[d] + top_keep * total[d]
             if take_winners:
-                winners[top] = subpixel_winner(total, min_disp)
-            _downward_range(order, parent, weight, out, a0 + 1, a1, winners, min_disp)
+                winners[top] = subpixel_winner(total[:competing], min_disp)
+            _downward_range(order, parent, weight, out, a0 + 1, a1, winners, min_disp, competing)
         else:
-            _downward_range(order, parent, weight, out, 1, a0, winners, min_disp)
-            _downward_range(order, parent, weight, out, a1, node_count, winners, min_disp)
+            _downward_range(order, parent, weight, out, 1, a0, winners, min_disp, competing)
+            _downward_range(order, parent, weight, out, a1, node_count, winners, min_disp, competing)
 
 
 @njit(cache=True, nogil=True)
@@ -685,20 +687,20 @@ def _aggregate(cost, tree, *, out, min_disp):
     if node_count == 0 or disparities == 0:
         return out, (winners.reshape(tree.height, tree.width) if take_winners else None)
     _walk(cost.reshape(node_count, disparities), tree.order, tree.parent, tree.weight,
-          out.reshape(node_count, disparities), winners, int(min_disp) if take_winners else 0)
+          out.reshape(node_count, disparities), winners, int(min_disp) if take_winners else 0, disparities)
     return out, (winners.reshape(tree.height, tree.width) if take_winners else None)
 
 
-def _walk(cost, order, parent, weight, out, winners, min_disp, *, levels=None):
+def _walk(cost, order, parent, weight, out, winners, min_disp, competing, *, levels=None):
     """Both passes over ``(N, D)`` rows: on two threads for large trees, else on one.
 
-    ``levels``: the cost is Yang's refinement cost of these levels (:func:`_distance_row`),
-    ``cost`` is not read.
+    Winners are taken among the first ``competing`` layers.  ``levels``: the cost is
+    Yang's refinement cost of these levels (:func:`_distance_row`), ``cost`` is not read.
     """
     if order.shape[0] < _PARALLEL_MIN_NODES or numba.get_num_threads() < 2:
-        _aggregate_serial(cost, levels, order, parent, weight, out, winners, min_disp)
+        _aggregate_serial(cost, levels, order, parent, weight, out, winners, min_disp, competing)
     else:
-        _aggregate_two_threads(cost, levels, order, parent, weight, out, winners, min_disp)
+        _aggregate_two_threads(cost, levels, order, parent, weight, out, winners, min_disp, competing)
 
 
 def tree_layout(tree: MinimumSpanningTree) -> TreeLayout:
@@ -752,7 +754,8 @@ def build_trees(guides, *, sigma: float = 0.1 * 255, median_size: int = 3) -> li
         return [first] + [f.result() for f in others]
 
 
-def aggregate_rows_winners(volume: np.ndarray, layout: TreeLayout, *, min_disp: int) -> np.ndarray:
+def aggregate_rows_winners(volume: np.ndarray, layout: TreeLayout, *, min_disp: int,
+                           num_disp: int | None = None) -> np.ndarray:
     """:func:`aggregate_winners` for a volume in the tree's row layout, aggregated in place.
 
     Parameters
@@ -762,6 +765,11 @@ def aggregate_rows_winners(volume: np.ndarray, layout: TreeLayout, *, min_disp: 
         (written so by the producing kernel, e.g. ``filled_sparse_dsi(pixel_of_row=...)``).
     layout : TreeLayout
     min_disp : int, keyword-only
+    num_disp : int, optional, keyword-only
+        Layers that compete for the winner: the first ``num_disp`` (default: all ``D``).
+        Rows may carry more layers, padded to a vector-friendly width
+        (:func:`stereobudget.volumes.padded_layers`); those are aggregated alongside, as
+        any layer is on its own, and never win.
 
     Returns
     -------
@@ -770,14 +778,15 @@ def aggregate_rows_winners(volume: np.ndarray, layout: TreeLayout, *, min_disp: 
         over a pixel-ordered volume, step for step, so the result is bit-identical.
     """
     _check_rows(volume, layout)
+    competing = _competing_layers(volume, num_disp)
     winners = np.empty(layout.height * layout.width, dtype=np.float32)
     if volume.size:
-        _walk(volume, layout.rows, layout.parent_row, layout.weight_row, volume, winners, int(min_disp))
+        _walk(volume, layout.rows, layout.parent_row, layout.weight_row, volume, winners, int(min_disp), competing)
     return winners[layout.row_of_pixel].reshape(layout.height, layout.width)
 
 
 def aggregate_two_rows_winners(first: np.ndarray, first_layout: TreeLayout, second: np.ndarray,
-                               second_layout: TreeLayout, *, min_disp: int) -> tuple:
+                               second_layout: TreeLayout, *, min_disp: int, num_disp: int | None = None) -> tuple:
     """:func:`aggregate_rows_winners` for two independent volumes, each walked on one thread.
 
     Two views' volumes on their own trees (Yang's left-right check) do not depend on each
@@ -793,7 +802,8 @@ def aggregate_two_rows_winners(first: np.ndarray, first_layout: TreeLayout, seco
         float32 C-contiguous ``(N, D)`` volumes in their layouts' row order, aggregated in
         place.
     first_layout, second_layout : TreeLayout
-    min_disp : int, keyword-only
+    min_disp, num_disp : int, keyword-only
+        As for :func:`aggregate_rows_winners`.
 
     Returns
     -------
@@ -802,20 +812,23 @@ def aggregate_two_rows_winners(first: np.ndarray, first_layout: TreeLayout, seco
     """
     _check_rows(first, first_layout)
     _check_rows(second, second_layout)
+    competing = _competing_layers(first, num_disp)
     node_count = first_layout.height * first_layout.width
     if (numba.get_num_threads() < 2 or node_count < _PARALLEL_MIN_NODES or second.shape != first.shape
             or first.size == 0):
         # (Below the split's size aggregate_rows_winners walks serially too.)
-        return (aggregate_rows_winners(first, first_layout, min_disp=min_disp),
-                aggregate_rows_winners(second, second_layout, min_disp=min_disp))
+        return (aggregate_rows_winners(first, first_layout, min_disp=min_disp, num_disp=num_disp),
+                aggregate_rows_winners(second, second_layout, min_disp=min_disp, num_disp=num_disp))
     winners = np.empty((2, node_count), dtype=np.float32)
     _aggregate_pair(first, first_layout.rows, first_layout.parent_row, first_layout.weight_row, second,
-                    second_layout.rows, second_layout.parent_row, second_layout.weight_row, winners, int(min_disp))
+                    second_layout.rows, second_layout.parent_row, second_layout.weight_row, winners, int(min_disp),
+                    competing)
     return tuple(w[lay.row_of_pixel].reshape(lay.height, lay.width)
                  for w, lay in zip(winners, (first_layout, second_layout)))
 
 
-def distance_rows_winners(levels: np.ndarray, layout: TreeLayout, *, min_disp: int, out: np.ndarray) -> np.ndarray:
+def distance_rows_winners(levels: np.ndarray, layout: TreeLayout, *, min_disp: int, out: np.ndarray,
+                          num_disp: int | None = None) -> np.ndarray:
     """Winners of the aggregated cost ``|min_disp + i - level|`` (0 where the level is NaN).
 
     The cost of Yang's non-local refinement (:func:`stereobudget.refine.nonlocal_refinement`),
@@ -833,6 +846,8 @@ def distance_rows_winners(levels: np.ndarray, layout: TreeLayout, *, min_disp: i
     out : numpy.ndarray, keyword-only
         float32 C-contiguous ``(N, D)`` scratch volume (its contents are overwritten and
         left undefined); ``D`` is the number of layers.
+    num_disp : int, optional, keyword-only
+        Layers that compete for the winner, as for :func:`aggregate_rows_winners`.
 
     Returns
     -------
@@ -844,11 +859,22 @@ def distance_rows_winners(levels: np.ndarray, layout: TreeLayout, *, min_disp: i
     levels = np.ascontiguousarray(levels, np.float32)
     if levels.shape != (out.shape[0],):
         raise ValueError(f"levels must have one value per row ({out.shape[0]}), got {levels.shape}")
+    competing = _competing_layers(out, num_disp)
     winners = np.empty(layout.height * layout.width, dtype=np.float32)
     if out.size:
-        _walk(out, layout.rows, layout.parent_row, layout.weight_row, out, winners, int(min_disp),
+        _walk(out, layout.rows, layout.parent_row, layout.weight_row, out, winners, int(min_disp), competing,
               levels=levels)
     return winners[layout.row_of_pixel].reshape(layout.height, layout.width)
+
+
+def _competing_layers(volume, num_disp):
+    """The layers of ``volume``'s rows that compete for the winner (``num_disp``; None: all)."""
+    layers = volume.shape[1]
+    if num_disp is None:
+        return layers
+    if not 1 <= num_disp <= layers:
+        raise ValueError(f"num_disp must be between 1 and the rows' {layers} layers, got {num_disp}")
+    return int(num_disp)
 
 
 def _check_rows(volume, layout):

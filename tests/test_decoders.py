@@ -1,5 +1,6 @@
 """End-to-end decoder behaviour on synthetic scenes with exact ground truth."""
 
+import cv2
 import numpy as np
 import pytest
 
@@ -188,3 +189,20 @@ def test_diagonal_right_check_decodes_without_a_right_tree(scene):
     with pytest.raises(OptionError, match="right_check"):
         stereobudget.decode(scene.left, samples, max_disp=int(np.ceil(scene.max_disp)),
                             params=dataclasses.replace(DecoderParams(), right_check="both"))
+
+
+def test_volume_rows_are_padded_to_whole_vectors():
+    from stereobudget.limits import volume_layers
+    assert [volume_layers(n) for n in (1, 7, 8, 9, 16, 61, 256)] == [8, 8, 8, 16, 16, 64, 256]
+
+
+@pytest.mark.parametrize("method", ["sparse", "hybrid"])
+def test_disparities_past_max_disp_never_win(method):
+    # A fronto-parallel scene at disparity 12 searched up to 9: the padded layers (10..15,
+    # computed alongside the 10 real ones) hold the true match and must not be chosen.
+    rng = np.random.default_rng(4)
+    left = cv2.GaussianBlur(rng.integers(0, 256, (60, 90, 3), dtype=np.uint8), (0, 0), 1.0)
+    right = np.roll(left, -12, axis=1)
+    samples = encode_image(right, pattern=SamplingPattern("grid", 3, 3))
+    disparity = stereobudget.decode(left, samples, max_disp=9, method=method).disparity
+    assert disparity.max() <= 9.0

@@ -288,7 +288,7 @@ def test_two_thread_split_equals_bruteforce():
     expected = similarity @ cost.reshape(-1, 5).astype(np.float64)
     out = np.empty((156, 5), np.float32)
     tree_module._aggregate_two_threads(cost.reshape(-1, 5), None, tree.order, tree.parent,
-                                       tree.weight, out, np.empty(0, np.float32), 0)
+                                       tree.weight, out, np.empty(0, np.float32), 0, 5)
     np.testing.assert_allclose(out, expected, rtol=1e-4)
 
 
@@ -300,7 +300,7 @@ def test_large_grid_parallel_path_matches_serial():
     assert tree.height * tree.width >= tree_module._PARALLEL_MIN_NODES
     serial = np.empty_like(cost)
     tree_module._aggregate_serial(cost.reshape(-1, 20), None, tree.order, tree.parent, tree.weight,
-                                  serial.reshape(-1, 20), np.empty(0, np.float32), 0)
+                                  serial.reshape(-1, 20), np.empty(0, np.float32), 0, 20)
     np.testing.assert_allclose(aggregate(cost, tree), serial, rtol=1e-5)
     in_place = cost.copy()
     aggregate(in_place, tree, out=in_place)
@@ -367,12 +367,38 @@ def test_two_independent_walks_equal_the_serial_walk_of_each(shape):
         serial = np.empty((tree.size, 6), np.float32)
         winners = np.empty(tree.size, np.float32)
         tree_module._aggregate_serial(volume.reshape(-1, 6), None, tree.order, tree.parent, tree.weight, serial,
-                                      winners, -2)
+                                      winners, -2, 6)
         expected.append(winners.reshape(shape))
     got = aggregate_two_rows_winners(rows[0], layouts[0], rows[1], layouts[1], min_disp=-2)
     assert np.array_equal(got[0], expected[0]) and np.array_equal(got[1], expected[1])
     with pytest.raises(ValueError, match="rows"):
         aggregate_two_rows_winners(rows[0][:-1], layouts[0], rows[1], layouts[1], min_disp=-2)
+
+
+@pytest.mark.parametrize("shape", [(12, 13), (140, 150)])  # the serial walk and the two-thread split
+def test_padding_layers_are_aggregated_but_never_win(shape):
+    tree, cost = smooth_tree_and_cost(shape, 5, seed=31)
+    layout = tree_layout(tree)
+    rows = np.ascontiguousarray(cost.reshape(-1, 5)[tree.order])
+    expected = aggregate_rows_winners(rows.copy(), layout, min_disp=3)
+    # Three padding layers far cheaper than any real one: they would win if they competed.
+    padded = np.concatenate([rows, np.full((tree.size, 3), -5.0, np.float32)], axis=1)
+    aggregated = padded.copy()
+    assert np.array_equal(aggregate_rows_winners(aggregated, layout, min_disp=3, num_disp=5), expected)
+    # The real layers are aggregated exactly as without the padding.
+    reference = rows.copy()
+    aggregate_rows_winners(reference, layout, min_disp=3)
+    assert np.array_equal(aggregated[:, :5], reference)
+    pair = aggregate_two_rows_winners(rows.copy(), layout, rows.copy(), layout, min_disp=3)
+    first, second = aggregate_two_rows_winners(padded.copy(), layout, padded.copy(), layout, min_disp=3, num_disp=5)
+    assert np.array_equal(first, pair[0]) and np.array_equal(second, pair[1])
+    levels = np.linspace(3, 7, tree.size, dtype=np.float32)
+    unpadded = distance_rows_winners(levels, layout, min_disp=3, out=np.empty((tree.size, 5), np.float32))
+    assert np.array_equal(distance_rows_winners(levels, layout, min_disp=3, out=np.empty_like(padded), num_disp=5),
+                          unpadded)
+    for bad in (0, 9):
+        with pytest.raises(ValueError, match="num_disp"):
+            aggregate_rows_winners(padded.copy(), layout, min_disp=3, num_disp=bad)
 
 
 @pytest.mark.parametrize("shape", [(12, 13), (140, 150)])  # the serial walk and the two-thread split
