@@ -101,23 +101,24 @@ def _hat(f, n):
 def _splat_points(rows, cols, values, guide, inv_cs, inv_cr, grid_val, grid_w, occupied):
     """Splat points carrying all K channels at shared positions (one mask channel)."""
     gy_n, gx_n, gz_n, k_n = grid_val.shape
+    weights = np.empty(8, dtype=np.float64)
     for k in range(rows.shape[0]):
         y = rows[k]
         x = cols[k]
         y0, ty = _hat(y * inv_cs, gy_n)
         x0, tx = _hat(x * inv_cs, gx_n)
         z0, tz = _hat(guide[y, x] * inv_cr, gz_n)
+        _corner_weights(ty, tx, tz, weights)
+        _mark_occupied(occupied, y0, x0, z0)
+        c = 0
         for a in range(2):
-            wy = ty if a else 1 - ty
             for b in range(2):
-                wx = tx if b else 1 - tx
-                for c in range(2):
-                    wz = tz if c else 1 - tz
-                    wgt = wy * wx * wz
+                for e in range(2):
+                    wgt = weights[c]
                     for ch in range(k_n):
-                        grid_val[y0 + a, x0 + b, z0 + c, ch] += wgt * values[k, ch]
-                    grid_w[y0 + a, x0 + b, z0 + c, 0] += wgt
-                    occupied[y0 + a, x0 + b, z0 + c] = True
+                        grid_val[y0 + a, x0 + b, z0 + e, ch] += wgt * values[k, ch]
+                    grid_w[y0 + a, x0 + b, z0 + e, 0] += wgt
+                    c += 1
 
 
 @njit(cache=True, parallel=True)
@@ -470,7 +471,7 @@ def _left_step(guide, y, x, step_spacing, step_weight):
 
 @njit(cache=True, inline="always")
 def _corner_weights(ty, tx, tz, weights):
-    """The 8 trilinear hat weights of a point, in the corner order of :func:`_splat_cost`."""
+    """The 8 trilinear hat weights of a point, corners in (y, x, z) order as every splat adds them."""
     c = 0
     for a in range(2):
         wy = ty if a else 1 - ty
@@ -618,6 +619,7 @@ def _splat_lattice_weights(sample_rows, first_column, stride, guide, inv_cs, inv
     """Base weight channel b: every column ``first_column[b] + m * stride`` of every sample row."""
     gy_n, gx_n, gz_n, n_base = base_w.shape
     w = guide.shape[1]
+    weights = np.empty(8, dtype=np.float64)
     for r in range(sample_rows.shape[0]):
         y = sample_rows[r]
         y0, ty = _hat(y * inv_cs, gy_n)
@@ -625,14 +627,13 @@ def _splat_lattice_weights(sample_rows, first_column, stride, guide, inv_cs, inv
             for x in range(first_column[ch], w, stride):
                 x0, tx = _hat(x * inv_cs, gx_n)
                 z0, tz = _hat(guide[y, x] * inv_cr, gz_n)
+                _corner_weights(ty, tx, tz, weights)
+                c = 0
                 for a in range(2):
-                    wy = ty if a else 1 - ty
                     for b in range(2):
-                        wx = tx if b else 1 - tx
-                        for c in range(2):
-                            wz = tz if c else 1 - tz
-                            wgt = wy * wx * wz
-                            base_w[y0 + a, x0 + b, z0 + c, ch] += wgt
+                        for e in range(2):
+                            base_w[y0 + a, x0 + b, z0 + e, ch] += weights[c]
+                            c += 1
 
 
 def _lattice_stride(rows: np.ndarray, cols: np.ndarray, width: int) -> int:
