@@ -361,6 +361,14 @@ def decode(left: np.ndarray, samples: SampleSet, *, max_disp: int, min_disp: int
     MemoryLimitError
         The estimate (:func:`stereobudget.limits.estimate_decode_memory`) exceeds
         ``max_memory``; checked before any volume is allocated.
+
+    Notes
+    -----
+    Decodes in one process hand memory to each other: dead cost volumes are kept for
+    the next decode (:mod:`stereobudget.scratch`, at most 256 MiB), and the first call
+    lets glibc keep freed blocks mapped (:func:`stereobudget.scratch.keep_freed_memory`;
+    ``STEREOBUDGET_KEEP_FREED_MEMORY=0`` opts out).  :func:`stereobudget.scratch.release`
+    gives both back.
     """
     # Each decode's temporaries are the next one's: keep them mapped (no page faults).
     scratch.keep_freed_memory()
