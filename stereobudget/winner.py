@@ -12,18 +12,16 @@ from __future__ import annotations
 import numpy as np
 from numba import njit, prange
 
+from ._simd import first_min
+
 
 @njit(cache=True, inline="always")
 def subpixel_winner(costs, min_disp):
     """Disparity of the smallest of ``costs`` (one pixel's layers), refined by a parabola
     through the minimum and its two neighbours (offset clamped to +-0.5)."""
     nd = costs.shape[0]
-    best = 0
-    bv = costs[0]
-    for i in range(1, nd):
-        if costs[i] < bv:
-            bv = costs[i]
-            best = i
+    best = first_min(costs)
+    bv = costs[best]
     sub = np.float32(0.0)
     if 0 < best < nd - 1:
         cm = costs[best - 1]

@@ -1,0 +1,56 @@
+"""first_min: the vectorised first-minimum scan equals the scalar scan, ties and NaN included."""
+
+import numpy as np
+import pytest
+from numba import njit
+
+from stereobudget._simd import MIN_VECTOR_LENGTH, first_min
+
+
+@njit(cache=True)
+def _rows_first_min(volume, length, out):
+    for k in range(volume.shape[0]):
+        out[k] = first_min(volume[k, :length])
+
+
+@njit(cache=True)
+def _strided_first_min(volume, out):
+    for k in range(volume.shape[0]):
+        out[k] = first_min(volume[k, ::2])  # not contiguous: the scalar scan
+
+
+def _scan(row):
+    """The definition: best starts at 0; an element smaller than the best so far replaces it."""
+    best = 0
+    for i in range(1, len(row)):
+        if row[i] < row[best]:
+            best = i
+    return best
+
+
+@pytest.mark.parametrize("kind", ["ties", "specials", "nan"])
+def test_first_min_equals_scalar_scan_for_every_length(kind):
+    rng = np.random.default_rng(3)
+    if kind == "ties":  # few distinct values: many equal minima, the first must win
+        volume = rng.integers(0, 3, (400, 70)).astype(np.float32)
+    elif kind == "specials":
+        volume = rng.choice(np.array([0.0, -0.0, 1.0, np.inf, -np.inf, 2.0], np.float32), (400, 70))
+    else:  # NaN never wins, except in the first place, where the scalar scan keeps it
+        volume = rng.random((400, 70), dtype=np.float32)
+        volume[rng.random(volume.shape) < 0.15] = np.nan
+    for length in range(1, 71):
+        got = np.empty(volume.shape[0], np.int64)
+        _rows_first_min(volume, length, got)
+        expected = [_scan(row[:length]) for row in volume]
+        assert got.tolist() == expected, length
+
+
+def test_first_min_on_long_smooth_rows_and_strided_rows():
+    rng = np.random.default_rng(4)
+    volume = np.cumsum(rng.standard_normal((300, 257)), axis=1).astype(np.float32)
+    got = np.empty(300, np.int64)
+    _rows_first_min(volume, 257, got)
+    assert got.tolist() == np.argmin(volume, axis=1).tolist()  # no NaN: numpy's first minimum
+    _strided_first_min(volume, got)
+    assert got.tolist() == np.argmin(volume[:, ::2], axis=1).tolist()
+    assert MIN_VECTOR_LENGTH <= 257 // 2
