@@ -1,13 +1,20 @@
-"""The index of a row's first minimum, eight lanes at a time.
+"""Two kernels' inner loops written as vector code, eight float32 lanes at a time.
 
-Every winner-take-all (:func:`stereobudget.winner.subpixel_winner`) scans a pixel's
-cost layers for the first smallest one; three tree walks of a Hybrid decode do it once
-per pixel each.  Written as a loop, LLVM keeps that scan scalar: a float minimum
-carried with its index does not vectorise without fast-math flags, and fast math would
-change which of two equal costs wins.  :func:`first_min` writes the vector code
-itself, as plain LLVM IR (no target-specific intrinsics): each of eight lanes keeps the
-smallest value it has seen and where it saw it, the lanes are merged by value and then
-by index, and the result is exactly the scalar scan's, ties and NaN included.
+LLVM leaves two hot loops of a decode scalar, and both are written here as plain LLVM
+IR vectors (no target-specific intrinsics; the results are the scalar loops', bit for
+bit):
+
+* :func:`first_min`, the index of a row's first minimum: every winner-take-all
+  (:func:`stereobudget.winner.subpixel_winner`) scans a pixel's cost layers for it, and
+  three tree walks of a Hybrid decode do it once per pixel each.  A float minimum
+  carried with its index does not vectorise without fast-math flags, and fast math
+  would change which of two equal costs wins.  Here each of eight lanes keeps the
+  smallest value it has seen and where it saw it; the lanes are merged by value, then
+  by index.
+* :func:`skewed_block_copy`, the right view's costs read along the left view's
+  diagonals (:mod:`stereobudget.volumes`): a strided read that LLVM turns into one
+  scalar load per element.  Here eight source rows' vectors are blended into eight
+  output rows.
 """
 
 from __future__ import annotations
@@ -151,3 +158,53 @@ def _first_min_overload(costs):
         return _first_min_vector(costs)
     return implementation
 
+
+
+@intrinsic
+def skewed_block_copy(typingctx, source, source_start, row_length, target, target_starts):
+    """``target[target_starts[r] + j] = source[source_start + (r + j) * row_length + j]`` for r, j < 8.
+
+    Eight rows of a diagonal read: output row ``r`` takes element ``j`` from source row
+    ``r + j``.  The 15 source vectors are loaded once and each output vector is blended
+    from eight of them, instead of 64 scalar loads at strided addresses.  ``source`` and
+    ``target`` are C-contiguous 1-D float32 arrays and ``target_starts`` 8 int64; no index
+    is checked.
+    """
+    float_row = isinstance(source, types.Array) and source.ndim == 1 and source.dtype == types.float32 \
+        and source.layout == "C"
+    float_target = isinstance(target, types.Array) and target.ndim == 1 and target.dtype == types.float32 \
+        and target.layout == "C"
+    starts = isinstance(target_starts, types.Array) and target_starts.ndim == 1 \
+        and target_starts.dtype == types.int64
+    if not (float_row and float_target and starts and isinstance(source_start, types.Integer)
+            and isinstance(row_length, types.Integer)):
+        return None
+    signature = types.void(source, source_start, row_length, target, target_starts)
+
+    def codegen(context, builder, sig, args):
+        f32, i32, i64 = ir.FloatType(), ir.IntType(32), ir.IntType(64)
+        vector = ir.VectorType(f32, LANES)
+        source_view = context.make_array(sig.args[0])(context, builder, args[0])
+        target_view = context.make_array(sig.args[3])(context, builder, args[3])
+        starts_view = context.make_array(sig.args[4])(context, builder, args[4])
+        first = context.cast(builder, args[1], sig.args[1], types.int64)
+        step = context.cast(builder, args[2], sig.args[2], types.int64)
+        source_data = builder.bitcast(source_view.data, f32.as_pointer())
+        target_data = builder.bitcast(target_view.data, f32.as_pointer())
+        starts_data = builder.bitcast(starts_view.data, i64.as_pointer())
+        rows = []
+        for k in range(2 * LANES - 1):
+            offset = builder.add(first, builder.mul(step, ir.Constant(i64, k)))
+            rows.append(builder.load(builder.bitcast(builder.gep(source_data, [offset]), vector.as_pointer()),
+                                     align=4))
+        for r in range(LANES):
+            out = rows[r]
+            for j in range(1, LANES):
+                # Lane j from source row r + j, every other lane kept.
+                mask = [LANES + k if k == j else k for k in range(LANES)]
+                out = builder.shuffle_vector(out, rows[r + j], ir.Constant(ir.VectorType(i32, LANES), mask))
+            start = builder.load(builder.gep(starts_data, [ir.Constant(i64, r)]))
+            builder.store(out, builder.bitcast(builder.gep(target_data, [start]), vector.as_pointer()), align=4)
+        return context.get_dummy_value()
+
+    return signature, codegen

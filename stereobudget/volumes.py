@@ -26,6 +26,7 @@ import numpy as np
 from numba import njit, prange
 
 from ._prefetch import prefetch_row
+from ._simd import LANES, skewed_block_copy
 from .bilateral import SliceGrids, slice_pixel
 from .cost import dense_pixel_costs, horizontal_gradient, reversed_right_row, to_gray
 from .scratch import empty_volume
@@ -58,6 +59,35 @@ def _gather_right_row(buffer, xr, min_disp, out):
         out[i] = buffer[w - 1, i]
 
 
+@njit(cache=True, inline="always")
+def _gather_right_rows(buffer, y, min_disp, right_rows, right_flat, right_row_of_pixel, starts):
+    """The right view's rows of image row ``y`` from the left costs in ``buffer`` (W, D).
+
+    Blocks of 8 right pixels x 8 layers whose diagonals stay inside the buffer are
+    copied as vectors (:func:`stereobudget._simd.skewed_block_copy`); the rest, near the
+    borders, element by element with clamping (:func:`_gather_right_row`).
+    """
+    w, num_disp = buffer.shape
+    source = buffer.reshape(w * num_disp)
+    vector_layers = num_disp % LANES == 0
+    for first in range(0, w, LANES):
+        if first + _PREFETCH_AHEAD < w:
+            for xr in range(first + _PREFETCH_AHEAD, min(first + _PREFETCH_AHEAD + LANES, w)):
+                prefetch_row(right_flat, right_row_of_pixel[y * w + xr], num_disp)
+        base = first + min_disp
+        # The block reads buffer rows base .. base + num_disp + 6.
+        if vector_layers and first + LANES <= w and base >= 0 and base + num_disp + LANES - 2 < w:
+            for r in range(LANES):
+                starts[r] = right_row_of_pixel[y * w + first + r] * num_disp
+            for layer in range(0, num_disp, LANES):
+                skewed_block_copy(source, (base + layer) * num_disp + layer, num_disp, right_flat, starts)
+                for r in range(LANES):
+                    starts[r] += LANES
+        else:
+            for xr in range(first, min(first + LANES, w)):
+                _gather_right_row(buffer, xr, min_disp, right_rows[right_row_of_pixel[y * w + xr]])
+
+
 @njit(cache=True, parallel=True)
 def _pair_rows(left, right, left_grad, right_grad, min_disp, truncation, grad_truncation, grad_weight,
                grids, guide, use_grids, grid_weight, dense_weight,
@@ -84,6 +114,7 @@ def _pair_rows(left, right, left_grad, right_grad, min_disp, truncation, grad_tr
         corner_index = np.empty(8, dtype=np.int64)
         band_index = np.empty(8, dtype=np.int64)
         corner_weight = np.empty(8, dtype=np.float32)
+        starts = np.empty(LANES, dtype=np.int64)
         for y in range(item * _ROWS_PER_ITEM, min((item + 1) * _ROWS_PER_ITEM, h)):
             reversed_right_row(right, right_grad, y, first_column, use_grad, rev)
             for x in range(w):
@@ -103,10 +134,7 @@ def _pair_rows(left, right, left_grad, right_grad, min_disp, truncation, grad_tr
                 for i in range(num_disp):
                     target[i] = o[i]
             if with_right:
-                for xr in range(w):
-                    if xr + _PREFETCH_AHEAD < w:
-                        prefetch_row(right_flat, right_row_of_pixel[y * w + xr + _PREFETCH_AHEAD], num_disp)
-                    _gather_right_row(buffer, xr, min_disp, right_rows[right_row_of_pixel[y * w + xr]])
+                _gather_right_rows(buffer, y, min_disp, right_rows, right_flat, right_row_of_pixel, starts)
 
 
 def _no_grids(num_disp: int) -> SliceGrids:

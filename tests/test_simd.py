@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 from numba import njit
 
-from stereobudget._simd import MIN_VECTOR_LENGTH, first_min
+from stereobudget._simd import MIN_VECTOR_LENGTH, first_min, skewed_block_copy
 
 
 @njit(cache=True)
@@ -54,3 +54,22 @@ def test_first_min_on_long_smooth_rows_and_strided_rows():
     _strided_first_min(volume, got)
     assert got.tolist() == np.argmin(volume[:, ::2], axis=1).tolist()
     assert MIN_VECTOR_LENGTH <= 257 // 2
+
+
+@njit(cache=True)
+def _copy_block(source, source_start, row_length, target, target_starts):
+    skewed_block_copy(source, source_start, row_length, target, target_starts)
+
+
+def test_skewed_block_copy_reads_diagonals_into_scattered_rows():
+    rng = np.random.default_rng(5)
+    row_length = 24
+    source = rng.random(40 * row_length, dtype=np.float32)
+    target = np.zeros(30 * row_length, np.float32)
+    starts = (rng.permutation(30)[:8] * row_length + 3).astype(np.int64)
+    _copy_block(source, 2 * row_length + 5, row_length, target, starts)
+    expected = np.zeros_like(target)
+    for r in range(8):
+        for j in range(8):
+            expected[starts[r] + j] = source[2 * row_length + 5 + (r + j) * row_length + j]
+    np.testing.assert_array_equal(target, expected)

@@ -26,9 +26,12 @@ def _layouts(left, right):
     return (tree_layout(build_tree(left, median_size=0)), tree_layout(build_tree(right, median_size=0)))
 
 
-@pytest.mark.parametrize("min_disp, num_disp", [(0, 12), (-3, 9), (5, 7), (0, 70)])
+@pytest.mark.parametrize("min_disp, num_disp", [(0, 12), (-3, 9), (5, 7), (0, 70),
+                                                (0, 16), (-5, 8), (3, 24), (0, 32), (-9, 16)])
 def test_dense_rows_are_the_full_dsi_and_its_diagonals(min_disp, num_disp, right_view_reference):
     # num_disp 70 > width: every right pixel's diagonal leaves the image on both sides.
+    # Multiples of 8 layers: blocks of 8 x 8 inside the image are copied as vectors, the
+    # blocks near the borders element by element; both must give the diagonals.
     left, right = _pair()
     left_layout, right_layout = _layouts(left, right)
     expected = full_dsi(left, right, min_disp=min_disp, num_disp=num_disp, **DENSE)
