@@ -335,6 +335,32 @@ class SliceGrids(NamedTuple):
     missing_value: np.float32
 
 
+@njit(cache=True, parallel=True)
+def _sum_over_intensity(grid):
+    """(GY, GX, GZ, K) float32 -> (GY, GX, K): each cell column summed over intensity.
+
+    The cells are added in intensity order, starting from the first, as
+    ``grid.sum(axis=2)`` adds them (the same float32 sums, a third of its time).
+    """
+    gy, gx, gz, k = grid.shape
+    out = np.empty((gy, gx, k), dtype=np.float32)
+    for job in prange(gy * gx):
+        y = job // gx
+        x = job - y * gx
+        total = out[y, x]
+        if gz == 0:
+            total[:] = 0.0
+            continue
+        first = grid[y, x, 0]
+        for c in range(k):
+            total[c] = first[c]
+        for z in range(1, gz):
+            cell = grid[y, x, z]
+            for c in range(k):
+                total[c] += cell[c]
+    return out
+
+
 def _slice_grids(grid_val, base_w, band_w, geom, *, density, missing_value, first_band_layer=None):
     """Pack blurred (GY, GX, GZ, C) grids into :class:`SliceGrids` (``band_w=None``: no band)."""
     gy, gx, gz, k = grid_val.shape
@@ -349,9 +375,8 @@ def _slice_grids(grid_val, base_w, band_w, geom, *, density, missing_value, firs
     return SliceGrids(
         values=grid_val.reshape(gy * gx * gz, k), base_weights=base_w.reshape(gy * gx * gz, n_base),
         band_weights=band_w.reshape(gy * band * gz, k),
-        spatial_values=np.ascontiguousarray(grid_val.sum(axis=2, dtype=np.float32)),
-        spatial_base=np.ascontiguousarray(base_w.sum(axis=2, dtype=np.float32)),
-        spatial_band=np.ascontiguousarray(band_w.sum(axis=2, dtype=np.float32)),
+        spatial_values=_sum_over_intensity(grid_val), spatial_base=_sum_over_intensity(base_w),
+        spatial_band=_sum_over_intensity(band_w),
         first_band_layer=np.asarray(first_band_layer, np.int64),
         layer_base=np.arange(k, dtype=np.int64) % n_base,
         gy=gy, gx=gx, gz=gz, band=band,

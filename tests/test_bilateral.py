@@ -89,3 +89,16 @@ def test_no_samples_nearby_falls_back_to_missing_value():
                                  sigma_s=1.0, sigma_r=5.0, missing_value=-1.0)
     assert out[0, 0, 0] == pytest.approx(7.0, abs=1e-4)
     assert out[29, 29, 0] == -1.0
+
+
+def test_sum_over_intensity_adds_the_cells_in_intensity_order():
+    from stereobudget.bilateral import _sum_over_intensity
+    rng = np.random.default_rng(21)
+    for shape in [(6, 7, 5, 64), (3, 4, 9, 5), (2, 3, 1, 3), (2, 2, 0, 4)]:
+        grid = (rng.random(shape, dtype=np.float32) * 100).astype(np.float32)
+        expected = np.zeros(shape[:2] + shape[3:], np.float32)
+        if shape[2]:
+            expected[...] = grid[:, :, 0]
+        for z in range(1, shape[2]):
+            expected += grid[:, :, z]
+        np.testing.assert_array_equal(_sum_over_intensity(grid), expected)
