@@ -620,10 +620,15 @@ def _splat_lattice_dsi(sample_rows, offset_x, stride, n_cols, right_values, righ
         for r in range(sample_rows.shape[0]):
             y = sample_rows[r]
             y0, ty = _hat(y * inv_cs, gy_n)
+            # (reach - first) % stride, stepped along with x instead of divided per pixel.
+            residue = (-min_disp - offset_x - first) % stride
             for x in range(w):
                 reach = x - min_disp - offset_x         # layer whose sample is the first column
                 i_max = min(last - 1, reach)
-                i_first = first + (reach - first) % stride
+                i_first = first + residue
+                residue += 1
+                if residue == stride:
+                    residue = 0
                 if i_first > i_max:
                     continue
                 left_step = _left_step(guide, y, x, step_spacing, step_weight)
@@ -632,11 +637,14 @@ def _splat_lattice_dsi(sample_rows, offset_x, stride, n_cols, right_values, righ
                 _corner_weights(ty, tx, tz, weights)
                 _mark_occupied(occupied, y0, x0, z0)
                 _corner_offsets(y0, x0, z0, gx_n, gz_n, band_n, num_disp, offsets, band_offsets)
+                # Sample of layer i: column (reach - i) / stride of the row, one less per step
+                # (counted down instead of divided per layer: the division was a third of the kernel).
+                k = r * n_cols + (reach - i_first) // stride
                 for i in range(i_first, i_max + 1, stride):
-                    k = r * n_cols + (reach - i) // stride
                     cost = sparse_pair_cost(left[y, x], right_values[k], left_step, right_steps[k], truncation,
                                             step_weight, step_truncation)
                     _splat_cost(values_flat, band_flat, offsets, band_offsets, weights, i, cost)
+                    k -= 1
 
 
 @njit(cache=True)
