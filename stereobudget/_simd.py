@@ -208,3 +208,102 @@ def skewed_block_copy(typingctx, source, source_start, row_length, target, targe
         return context.get_dummy_value()
 
     return signature, codegen
+
+
+@intrinsic
+def blend_rows_first_min(typingctx, row, above, similarity, keep, competing):
+    """``row[d] = similarity * above[d] + keep * row[d]`` for every d, and the index of the
+    first minimum of the new ``row[:competing]`` (:func:`first_min`'s, for a row whose
+    first element is not NaN).
+
+    The down pass of a tree walk and its winner-take-all in one loop: each new vector is
+    compared while it is still in a register.  ``row`` and ``above`` are C-contiguous
+    float32 rows of the same length, a multiple of 8 (not checked), with
+    ``1 <= competing <= len(row)``.  The blend is the scalar loop's arithmetic (two
+    products and a sum, each rounded to float32), bit for bit.
+    """
+    def is_row(array):
+        return (isinstance(array, types.Array) and array.ndim == 1 and array.dtype == types.float32
+                and array.layout == "C")
+
+    if not (is_row(row) and is_row(above) and similarity == types.float32 and keep == types.float32
+            and isinstance(competing, types.Integer)):
+        return None
+    signature = types.int64(row, above, similarity, keep, competing)
+
+    def codegen(context, builder, sig, args):
+        f32, i32, i64 = ir.FloatType(), ir.IntType(32), ir.IntType(64)
+        vector, indices = ir.VectorType(f32, LANES), ir.VectorType(i32, LANES)
+        row_view = context.make_array(sig.args[0])(context, builder, args[0])
+        above_view = context.make_array(sig.args[1])(context, builder, args[1])
+        length = cgutils.unpack_tuple(builder, row_view.shape, 1)[0]
+        row_data = builder.bitcast(row_view.data, vector.as_pointer())
+        above_data = builder.bitcast(above_view.data, vector.as_pointer())
+        competing_lanes = builder.trunc(context.cast(builder, args[4], sig.args[4], types.int64), i32)
+        limit = builder.insert_element(ir.Constant(indices, ir.Undefined), competing_lanes, ir.Constant(i32, 0))
+        limit = builder.shuffle_vector(limit, limit, ir.Constant(indices, [0] * LANES))
+
+        def splat(value):
+            vec = builder.insert_element(ir.Constant(vector, ir.Undefined), value, ir.Constant(i32, 0))
+            return builder.shuffle_vector(vec, vec, ir.Constant(indices, [0] * LANES))
+
+        similarity_vector, keep_vector = splat(args[2]), splat(args[3])
+        infinity = ir.Constant(vector, [float("inf")] * LANES)
+        lane_numbers = ir.Constant(indices, list(range(LANES)))
+        step = ir.Constant(indices, [LANES] * LANES)
+
+        def block(index, block_indices, best, best_index):
+            """Blend vector ``index`` of the rows; fold it into (best, best_index)."""
+            above_values = builder.load(builder.gep(above_data, [index]), align=4)
+            pointer = builder.gep(row_data, [index])
+            values = builder.fadd(builder.fmul(similarity_vector, above_values),
+                                  builder.fmul(keep_vector, builder.load(pointer, align=4)))
+            builder.store(values, pointer, align=4)
+            # NaN, and the padding lanes past `competing`, read as +inf: they never win.
+            usable = builder.and_(builder.fcmp_ordered("ord", values, values),
+                                  builder.icmp_signed("<", block_indices, limit))
+            values = builder.select(usable, values, infinity)
+            smaller = builder.fcmp_ordered("<", values, best)
+            return builder.select(smaller, values, best), builder.select(smaller, block_indices, best_index)
+
+        blocks = builder.sdiv(length, ir.Constant(i64, LANES))
+        entry = builder.block
+        loop = builder.append_basic_block("blend.loop")
+        done = builder.append_basic_block("blend.done")
+        builder.cbranch(builder.icmp_signed(">", blocks, ir.Constant(i64, 0)), loop, done)
+        builder.position_at_end(loop)
+        counter = builder.phi(i64)
+        block_indices = builder.phi(indices)
+        best = builder.phi(vector)
+        best_index = builder.phi(indices)
+        next_best, next_index = block(counter, block_indices, best, best_index)
+        next_counter = builder.add(counter, ir.Constant(i64, 1))
+        next_indices = builder.add(block_indices, step)
+        loop_end = builder.block
+        for phi, initial, following in ((counter, ir.Constant(i64, 0), next_counter),
+                                        (block_indices, lane_numbers, next_indices),
+                                        (best, infinity, next_best),
+                                        (best_index, lane_numbers, next_index)):
+            phi.add_incoming(initial, entry)
+            phi.add_incoming(following, loop_end)
+        builder.cbranch(builder.icmp_signed("<", next_counter, blocks), loop, done)
+        builder.position_at_end(done)
+        final_best = builder.phi(vector)
+        final_index = builder.phi(indices)
+        final_best.add_incoming(infinity, entry)
+        final_index.add_incoming(lane_numbers, entry)
+        final_best.add_incoming(next_best, loop_end)
+        final_index.add_incoming(next_index, loop_end)
+        # Lanes that never saw a usable value hold (+inf, lane number): an all-+inf row
+        # still ties to index 0, as in the scalar scan.
+        best_value, best_lane_index = final_best, final_index
+        width = LANES
+        while width > 1:
+            width //= 2
+            upper = ir.Constant(indices, [width + k if k < width else k for k in range(LANES)])
+            best_value, best_lane_index = _better(builder, best_value, best_lane_index,
+                                                  builder.shuffle_vector(best_value, best_value, upper),
+                                                  builder.shuffle_vector(best_lane_index, best_lane_index, upper))
+        return builder.sext(builder.extract_element(best_lane_index, ir.Constant(i32, 0)), i64)
+
+    return signature, codegen

@@ -29,8 +29,9 @@ import numpy as np
 from numba import njit, prange
 
 from ._prefetch import prefetch_row
+from ._simd import LANES, blend_rows_first_min
 from .errors import ImageReadError, OptionError
-from .winner import subpixel_winner
+from .winner import refined_winner, subpixel_winner
 
 __all__ = ["MinimumSpanningTree", "TreeLayout", "build_tree", "build_trees", "tree_layout", "aggregate",
            "aggregate_winners", "aggregate_rows_winners", "aggregate_two_rows_winners",
@@ -430,6 +431,9 @@ def _downward_range(order, parent, weight, out, lo, hi, winners, min_disp, compe
     """
     disparities = out.shape[1]
     take_winners = winners.shape[0] > 0
+    # Whole vectors of layers (the decoders' padded volumes): the blend and the search for
+    # the winner in one vector loop.
+    fused = take_winners and disparities % LANES == 0
     out_flat = out.reshape(out.size)
     for k in range(lo, hi):
         if k + _PREFETCH_AHEAD < hi:
@@ -441,6 +445,12 @@ def _downward_range(order, parent, weight, out, lo, hi, winners, min_disp, compe
         keep = np.float32(1.0) - s * s
         above = out[parent[v]]
         row = out[v]
+        if fused:
+            best = blend_rows_first_min(row, above, s, keep, competing)
+            if row[0] != row[0]:
+                best = 0  # a NaN first layer wins, as in first_min
+            winners[v] = refined_winner(row[:competing], best, min_disp)
+            continue
         for d in range(disparities):
             row[d] = s * above[d] + keep * row[d]
         if take_winners:

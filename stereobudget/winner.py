@@ -19,8 +19,13 @@ from ._simd import first_min
 def subpixel_winner(costs, min_disp):
     """Disparity of the smallest of ``costs`` (one pixel's layers), refined by a parabola
     through the minimum and its two neighbours (offset clamped to +-0.5)."""
+    return refined_winner(costs, first_min(costs), min_disp)
+
+
+@njit(cache=True, inline="always")
+def refined_winner(costs, best, min_disp):
+    """:func:`subpixel_winner` for a known index ``best`` of the first smallest of ``costs``."""
     nd = costs.shape[0]
-    best = first_min(costs)
     bv = costs[best]
     sub = np.float32(0.0)
     if 0 < best < nd - 1:

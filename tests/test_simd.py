@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 from numba import njit
 
-from stereobudget._simd import MIN_VECTOR_LENGTH, first_min, skewed_block_copy
+from stereobudget._simd import MIN_VECTOR_LENGTH, blend_rows_first_min, first_min, skewed_block_copy
 
 
 @njit(cache=True)
@@ -73,3 +73,28 @@ def test_skewed_block_copy_reads_diagonals_into_scattered_rows():
         for j in range(8):
             expected[starts[r] + j] = source[2 * row_length + 5 + (r + j) * row_length + j]
     np.testing.assert_array_equal(target, expected)
+
+
+@njit(cache=True)
+def _blend_all(rows, aboves, similarities, competing, best):
+    for k in range(rows.shape[0]):
+        s = similarities[k]
+        best[k] = blend_rows_first_min(rows[k], aboves[k], s, np.float32(1.0) - s * s, competing)
+
+
+@pytest.mark.parametrize("layers, competing", [(8, 1), (8, 8), (16, 13), (64, 61), (64, 64), (72, 5)])
+def test_blend_rows_first_min_is_the_blend_then_the_first_minimum(layers, competing):
+    rng = np.random.default_rng(6)
+    rows = rng.integers(0, 4, (300, layers)).astype(np.float32)   # many ties
+    rows[rng.random(rows.shape) < 0.05] = np.nan
+    rows[:, 0] = np.where(np.isnan(rows[:, 0]), 1.0, rows[:, 0])  # (a NaN first layer: the caller's case)
+    rows[:20, 1:] = np.inf
+    aboves = rng.integers(0, 4, (300, layers)).astype(np.float32)
+    similarities = rng.choice(np.array([0.0, 0.5, 1.0, 0.3], np.float32), 300)
+    keep = np.float32(1.0) - similarities * similarities
+    with np.errstate(invalid="ignore"):  # 0 * inf: NaN, as in the kernel
+        expected_rows = similarities[:, None] * aboves + keep[:, None] * rows   # float32 throughout
+    best = np.empty(300, np.int64)
+    _blend_all(rows, aboves, similarities, competing, best)
+    np.testing.assert_array_equal(rows, expected_rows)
+    assert best.tolist() == [_scan(row[:competing]) for row in expected_rows]
