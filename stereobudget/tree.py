@@ -336,6 +336,15 @@ def _distance_row(level, min_disp, target):
             target[d] = abs(np.float32(min_disp + d) - level)
 
 
+@njit(cache=True, inline="always")
+def _prefetch_node(out_flat, order, parent, position, disparities):
+    """Prefetch the rows of the node at order position ``position`` and of its parent: in
+    pixel order both are at data-dependent addresses, and in tree order the parent often is."""
+    node = order[position]
+    prefetch_row(out_flat, node, disparities)
+    prefetch_row(out_flat, parent[node], disparities)
+
+
 @njit(cache=True)
 def _upward_range(cost, levels, min_disp, order, parent, weight, out, ready, lo, hi):
     """Leaf-to-root pass over order positions ``[lo, hi)``, each node pushing into its parent.
@@ -343,22 +352,30 @@ def _upward_range(cost, levels, min_disp, order, parent, weight, out, ready, lo,
     ``ready[v]`` says whether ``out[v]`` already holds ``C(v)`` plus pushed children, so
     the copy of ``C(v)`` is fused into the walk instead of being a separate pass.  ``C``
     is ``cost``, or with ``levels`` (float32 ``(N,)`` instead of None) the refinement
-    cost of :func:`_distance_row`, computed here and never stored on its own.  (numba
-    compiles the two cases apart, so the ``levels is None`` tests cost nothing.)
+    cost of :func:`_distance_row`, computed here and never stored on its own.  With
+    ``cost`` and ``levels`` both None the volume is aggregated in place: every row of
+    ``out`` already holds its cost, and ``ready`` is not used.  (numba compiles the cases
+    apart, so the ``is None`` tests cost nothing.)
+
+    In place, a parent's first pushed child needs no copy of the parent's cost, and above
+    all no loop whose source and target are the same row: LLVM guards its vector loops
+    with an overlap check, which such a loop fails, so it ran scalar on three nodes in
+    four.  The sums are the same, bit for bit.
     """
     disparities = out.shape[1]
     out_flat = out.reshape(out.size)
     for k in range(hi - 1, lo - 1, -1):
         if k - _PREFETCH_AHEAD >= lo:
-            # Rows of a node a few steps ahead and of its parent: in pixel order both are at
-            # data-dependent addresses, and in tree order the parent often is.
-            ahead = order[k - _PREFETCH_AHEAD]
-            prefetch_row(out_flat, ahead, disparities)
-            prefetch_row(out_flat, parent[ahead], disparities)
+            _prefetch_node(out_flat, order, parent, k - _PREFETCH_AHEAD, disparities)
         v = order[k]
         p = parent[v]
         s = weight[v]
         child = out[v]
+        target = out[p]
+        if cost is None and levels is None:
+            for d in range(disparities):
+                target[d] += s * child[d]
+            continue
         if not ready[v]:  # a leaf: nothing was pushed into it
             if levels is None:
                 source = cost[v]
@@ -367,7 +384,6 @@ def _upward_range(cost, levels, min_disp, order, parent, weight, out, ready, lo,
             else:
                 _distance_row(levels[v], min_disp, child)
             ready[v] = 1
-        target = out[p]
         if ready[p]:
             for d in range(disparities):
                 target[d] += s * child[d]
@@ -382,30 +398,6 @@ def _upward_range(cost, levels, min_disp, order, parent, weight, out, ready, lo,
                 for d in range(disparities):
                     target[d] += s * child[d]
             ready[p] = 1
-
-
-@njit(cache=True)
-def _upward_in_place(order, parent, weight, out, lo, hi):
-    """:func:`_upward_range` for a volume aggregated in place: every row already holds its cost.
-
-    Then a parent's first pushed child needs no copy of the parent's cost and no
-    ``ready`` flag, and above all no loop whose source and target are the same row: LLVM
-    guards its vector loops with an overlap check, which such a loop fails, so it ran
-    scalar on three nodes in four.  The sums are the same, bit for bit.
-    """
-    disparities = out.shape[1]
-    out_flat = out.reshape(out.size)
-    for k in range(hi - 1, lo - 1, -1):
-        if k - _PREFETCH_AHEAD >= lo:
-            ahead = order[k - _PREFETCH_AHEAD]
-            prefetch_row(out_flat, ahead, disparities)
-            prefetch_row(out_flat, parent[ahead], disparities)
-        v = order[k]
-        s = weight[v]
-        child = out[v]
-        target = out[parent[v]]
-        for d in range(disparities):
-            target[d] += s * child[d]
 
 
 @njit(cache=True)
@@ -437,9 +429,7 @@ def _downward_range(order, parent, weight, out, lo, hi, winners, min_disp, compe
     out_flat = out.reshape(out.size)
     for k in range(lo, hi):
         if k + _PREFETCH_AHEAD < hi:
-            ahead = order[k + _PREFETCH_AHEAD]
-            prefetch_row(out_flat, ahead, disparities)
-            prefetch_row(out_flat, parent[ahead], disparities)
+            _prefetch_node(out_flat, order, parent, k + _PREFETCH_AHEAD, disparities)
         v = order[k]
         s = weight[v]
         keep = np.float32(1.0) - s * s
@@ -464,7 +454,7 @@ def _aggregate_serial(cost, levels, order, parent, weight, out, winners, min_dis
     :func:`_upward_range`)."""
     node_count = order.shape[0]
     if cost is None:
-        _upward_in_place(order, parent, weight, out, 1, node_count)
+        _upward_range(None, None, 0, order, parent, weight, out, np.zeros(0, np.uint8), 1, node_count)
     else:
         ready = np.zeros(node_count, dtype=np.uint8)
         _upward_range(cost, levels, min_disp, order, parent, weight, out, ready, 1, node_count)
@@ -523,10 +513,10 @@ def _aggregate_two_threads(cost, levels, order, parent, weight, out, winners, mi
     for part in prange(2):
         if cost is None:
             if part == 0:
-                _upward_in_place(order, parent, weight, out, a0 + 1, a1)
+                _upward_range(None, None, 0, order, parent, weight, out, ready, a0 + 1, a1)
             else:
-                _upward_in_place(order, parent, weight, out, a1, node_count)
-                _upward_in_place(order, parent, weight, out, 1, a0)
+                _upward_range(None, None, 0, order, parent, weight, out, ready, a1, node_count)
+                _upward_range(None, None, 0, order, parent, weight, out, ready, 1, a0)
         elif part == 0:
             _upward_range(cost, levels, min_disp, order, parent, weight, out, ready, a0 + 1, a1)
             _make_ready(cost, levels, min_disp, out, ready, order[a0])

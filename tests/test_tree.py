@@ -305,7 +305,7 @@ def test_large_grid_parallel_path_matches_serial():
     in_place = cost.copy()
     aggregate(in_place, tree, out=in_place)
     np.testing.assert_allclose(in_place, serial, rtol=1e-5)
-    # In place, the upward pass skips the copies of the cost (_upward_in_place): same sums.
+    # In place, the upward pass skips the copies of the cost (_upward_range, cost=None): same sums.
     np.testing.assert_array_equal(in_place, aggregate(cost, tree))
 
 
