@@ -1,8 +1,7 @@
-"""Two kernels' inner loops written as vector code, eight float32 lanes at a time.
+"""Hot inner loops written as vector code, eight float32 lanes at a time.
 
-LLVM leaves two hot loops of a decode scalar, and both are written here as plain LLVM
-IR vectors (no target-specific intrinsics; the results are the scalar loops', bit for
-bit):
+LLVM leaves two hot loops of a decode scalar, and they are written here as plain LLVM IR
+vectors (no target-specific intrinsics; the results are the scalar loops', bit for bit):
 
 * :func:`first_min`, the index of a row's first minimum: every winner-take-all
   (:func:`stereobudget.winner.subpixel_winner`) scans a pixel's cost layers for it, and
@@ -15,6 +14,8 @@ bit):
   diagonals (:mod:`stereobudget.volumes`): a strided read that LLVM turns into one
   scalar load per element.  Here eight source rows' vectors are blended into eight
   output rows.
+
+:func:`blend_rows_first_min` fuses the first with the downward pass of a tree walk.
 """
 
 from __future__ import annotations
@@ -39,6 +40,25 @@ def _better(builder, value, index, other_value, other_index):
     return builder.select(take, other_value, value), builder.select(take, other_index, index)
 
 
+def _best_lane_index(builder, value, index):
+    """The index (i64) of the best of the 8 lanes' (value, index) candidates (:func:`_better`)."""
+    i32 = ir.IntType(32)
+    width = LANES
+    while width > 1:  # halve the lanes: 8 -> 4 -> 2 -> 1
+        width //= 2
+        upper = ir.Constant(ir.VectorType(i32, LANES), [width + k if k < width else k for k in range(LANES)])
+        value, index = _better(builder, value, index, builder.shuffle_vector(value, value, upper),
+                               builder.shuffle_vector(index, index, upper))
+    return builder.sext(builder.extract_element(index, ir.Constant(i32, 0)), ir.IntType(64))
+
+
+def _broadcast(builder, scalar, vector_type):
+    """``scalar`` in every lane of a ``vector_type`` value."""
+    i32 = ir.IntType(32)
+    vector = builder.insert_element(ir.Constant(vector_type, ir.Undefined), scalar, ir.Constant(i32, 0))
+    return builder.shuffle_vector(vector, vector, ir.Constant(ir.VectorType(i32, LANES), [0] * LANES))
+
+
 @intrinsic
 def _first_min_vector(typingctx, array):
     """Index of the first minimum of a C-contiguous float32 row of >= 16 elements whose
@@ -61,10 +81,7 @@ def _first_min_vector(typingctx, array):
             """Elements [offset, offset + 8) (NaN read as +inf) and their indices."""
             values = builder.load(builder.bitcast(builder.gep(data, [offset]), vector.as_pointer()), align=4)
             values = builder.select(builder.fcmp_unordered("uno", values, values), infinity, values)
-            start = builder.insert_element(ir.Constant(indices, ir.Undefined), builder.trunc(offset, i32),
-                                           ir.Constant(i32, 0))
-            start = builder.shuffle_vector(start, start, ir.Constant(indices, [0] * LANES))
-            return values, builder.add(start, lane_numbers)
+            return values, builder.add(_broadcast(builder, builder.trunc(offset, i32), indices), lane_numbers)
 
         def update(best, best_index, values, value_indices):
             # Each lane sees its elements in non-decreasing index order, so a strict < keeps
@@ -112,14 +129,7 @@ def _first_min_vector(typingctx, array):
         rest = builder.mul(pairs, pair)
         a, a_index = update(a, a_index, *load(builder.select(builder.icmp_signed("<", rest, last), rest, last)))
         b, b_index = update(b, b_index, *load(last))
-        best, best_index = _better(builder, a, a_index, b, b_index)
-        width = LANES
-        while width > 1:  # halve the lanes: 8 -> 4 -> 2 -> 1
-            width //= 2
-            upper = ir.Constant(indices, [width + k if k < width else k for k in range(LANES)])
-            best, best_index = _better(builder, best, best_index, builder.shuffle_vector(best, best, upper),
-                                       builder.shuffle_vector(best_index, best_index, upper))
-        return builder.sext(builder.extract_element(best_index, ir.Constant(i32, 0)), i64)
+        return _best_lane_index(builder, *_better(builder, a, a_index, b, b_index))
 
     return signature, codegen
 
@@ -157,7 +167,6 @@ def _first_min_overload(costs):
             return _first_min_scalar(costs)
         return _first_min_vector(costs)
     return implementation
-
 
 
 @intrinsic
@@ -239,15 +248,9 @@ def blend_rows_first_min(typingctx, row, above, similarity, keep, competing):
         length = cgutils.unpack_tuple(builder, row_view.shape, 1)[0]
         row_data = builder.bitcast(row_view.data, vector.as_pointer())
         above_data = builder.bitcast(above_view.data, vector.as_pointer())
-        competing_lanes = builder.trunc(context.cast(builder, args[4], sig.args[4], types.int64), i32)
-        limit = builder.insert_element(ir.Constant(indices, ir.Undefined), competing_lanes, ir.Constant(i32, 0))
-        limit = builder.shuffle_vector(limit, limit, ir.Constant(indices, [0] * LANES))
-
-        def splat(value):
-            vec = builder.insert_element(ir.Constant(vector, ir.Undefined), value, ir.Constant(i32, 0))
-            return builder.shuffle_vector(vec, vec, ir.Constant(indices, [0] * LANES))
-
-        similarity_vector, keep_vector = splat(args[2]), splat(args[3])
+        limit = _broadcast(builder, builder.trunc(context.cast(builder, args[4], sig.args[4], types.int64), i32),
+                           indices)
+        similarity_vector, keep_vector = _broadcast(builder, args[2], vector), _broadcast(builder, args[3], vector)
         infinity = ir.Constant(vector, [float("inf")] * LANES)
         lane_numbers = ir.Constant(indices, list(range(LANES)))
         step = ir.Constant(indices, [LANES] * LANES)
@@ -296,14 +299,6 @@ def blend_rows_first_min(typingctx, row, above, similarity, keep, competing):
         final_index.add_incoming(next_index, loop_end)
         # Lanes that never saw a usable value hold (+inf, lane number): an all-+inf row
         # still ties to index 0, as in the scalar scan.
-        best_value, best_lane_index = final_best, final_index
-        width = LANES
-        while width > 1:
-            width //= 2
-            upper = ir.Constant(indices, [width + k if k < width else k for k in range(LANES)])
-            best_value, best_lane_index = _better(builder, best_value, best_lane_index,
-                                                  builder.shuffle_vector(best_value, best_value, upper),
-                                                  builder.shuffle_vector(best_lane_index, best_lane_index, upper))
-        return builder.sext(builder.extract_element(best_lane_index, ir.Constant(i32, 0)), i64)
+        return _best_lane_index(builder, final_best, final_index)
 
     return signature, codegen

@@ -402,6 +402,8 @@ def _upward_range(cost, levels, min_disp, order, parent, weight, out, ready, lo,
 
 @njit(cache=True)
 def _make_ready(cost, levels, min_disp, out, ready, v):
+    if cost is None and levels is None:
+        return  # aggregated in place: the row holds its cost
     if not ready[v]:
         if levels is None:
             source = cost[v]
@@ -453,12 +455,9 @@ def _aggregate_serial(cost, levels, order, parent, weight, out, winners, min_dis
     ``cost=None``: ``out`` holds the cost and is aggregated in place (``levels``: see
     :func:`_upward_range`)."""
     node_count = order.shape[0]
-    if cost is None:
-        _upward_range(None, None, 0, order, parent, weight, out, np.zeros(0, np.uint8), 1, node_count)
-    else:
-        ready = np.zeros(node_count, dtype=np.uint8)
-        _upward_range(cost, levels, min_disp, order, parent, weight, out, ready, 1, node_count)
-        _make_ready(cost, levels, min_disp, out, ready, order[0])
+    ready = np.zeros(node_count if cost is not None else 0, dtype=np.uint8)
+    _upward_range(cost, levels, min_disp, order, parent, weight, out, ready, 1, node_count)
+    _make_ready(cost, levels, min_disp, out, ready, order[0])
     if winners.shape[0] > 0:
         winners[order[0]] = subpixel_winner(out[order[0]][:competing], min_disp)
     _downward_range(order, parent, weight, out, 1, node_count, winners, min_disp, competing)
@@ -511,13 +510,7 @@ def _aggregate_two_threads(cost, levels, order, parent, weight, out, winners, mi
     a1 = a0 + subtree_size
     ready = np.zeros(node_count if cost is not None else 0, dtype=np.uint8)
     for part in prange(2):
-        if cost is None:
-            if part == 0:
-                _upward_range(None, None, 0, order, parent, weight, out, ready, a0 + 1, a1)
-            else:
-                _upward_range(None, None, 0, order, parent, weight, out, ready, a1, node_count)
-                _upward_range(None, None, 0, order, parent, weight, out, ready, 1, a0)
-        elif part == 0:
+        if part == 0:
             _upward_range(cost, levels, min_disp, order, parent, weight, out, ready, a0 + 1, a1)
             _make_ready(cost, levels, min_disp, out, ready, order[a0])
         else:
