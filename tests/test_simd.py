@@ -1,4 +1,4 @@
-"""first_min: the vectorised first-minimum scan equals the scalar scan, ties and NaN included."""
+"""stereobudget._simd: each vector kernel equals the scalar loop it replaces, ties and NaN included."""
 
 import numpy as np
 import pytest
