@@ -509,14 +509,18 @@ def test_cost_shape_must_match_tree():
 def test_build_trees_matches_build_tree_on_each_guide_and_keeps_the_layouts():
     import numba
     rng = np.random.default_rng(12)
-    guides = [rng.integers(0, 256, (40, 70, 3), dtype=np.uint8), rng.uniform(0, 255, (40, 70, 3)).astype(np.float32)]
+    # Two guides go to the two-thread kernel, the third is built alone; shapes differ.
+    guides = [rng.integers(0, 256, (40, 70, 3), dtype=np.uint8), rng.uniform(0, 255, (40, 70, 3)).astype(np.float32),
+              rng.integers(0, 256, (23, 31), dtype=np.uint8)]
     for threads in (1, min(2, numba.config.NUMBA_NUM_THREADS)):
         numba.set_num_threads(threads)
         try:
             trees = build_trees(guides, sigma=20.0, median_size=3)
         finally:
             numba.set_num_threads(numba.config.NUMBA_NUM_THREADS)
+        assert len(trees) == len(guides)
         for tree, guide in zip(trees, guides):
+            assert (tree.height, tree.width) == guide.shape[:2]
             alone = build_tree(guide, sigma=20.0, median_size=3)
             for name in ("order", "parent", "weight"):
                 np.testing.assert_array_equal(getattr(tree, name), getattr(alone, name))
