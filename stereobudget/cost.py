@@ -37,8 +37,24 @@ def to_gray(image_f32: np.ndarray) -> np.ndarray:
     """Luma (Rec. 601) of a float32 (H, W, C) RGB image; a one-channel image is returned as (H, W)."""
     if image_f32.shape[2] == 1:
         return np.ascontiguousarray(image_f32[:, :, 0])
+    if image_f32.dtype == np.float32:
+        return _luma(image_f32)
     r, g, b = image_f32[:, :, 0], image_f32[:, :, 1], image_f32[:, :, 2]
     return (np.float32(0.299) * r + np.float32(0.587) * g + np.float32(0.114) * b).astype(np.float32)
+
+
+@njit(cache=True, parallel=True)
+def _luma(image):
+    """:func:`to_gray` of float32 RGB on both threads: the same float32 products and sums, in
+    numpy's order, so the same values (numpy's three passes over strided channels took 0.6 ms
+    on Teddy, five times per decode)."""
+    h, w = image.shape[0], image.shape[1]
+    out = np.empty((h, w), dtype=np.float32)
+    red, green, blue = np.float32(0.299), np.float32(0.587), np.float32(0.114)
+    for y in prange(h):
+        for x in range(w):
+            out[y, x] = red * image[y, x, 0] + green * image[y, x, 1] + blue * image[y, x, 2]
+    return out
 
 
 @njit(cache=True, inline="always")

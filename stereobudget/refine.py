@@ -97,6 +97,16 @@ def left_right_stable(disp_left, disp_right, tolerance):
     return out
 
 
+@njit(cache=True, parallel=True)
+def _stable_levels(disp, stable, pixel_of_row):
+    """Row k: the disparity of pixel ``pixel_of_row[k]`` where it is stable, else NaN."""
+    out = np.empty(pixel_of_row.shape[0], dtype=np.float32)
+    for k in prange(pixel_of_row.shape[0]):
+        p = pixel_of_row[k]
+        out[k] = disp[p] if stable[p] else np.float32(np.nan)
+    return out
+
+
 def nonlocal_refinement(disp: np.ndarray, stable: np.ndarray, tree, *, min_disp: int, num_disp: int,
                         out: np.ndarray | None = None):
     """Propagate stable disparities to unstable pixels along the tree (Yang's refinement).
@@ -123,7 +133,8 @@ def nonlocal_refinement(disp: np.ndarray, stable: np.ndarray, tree, *, min_disp:
     rows = np.empty((h * w, int(num_disp)), np.float32) if out is None else out.reshape(h * w, -1)
     # Yang's cost |d - D(q)| of the stable pixels (0 elsewhere) is computed by the walk
     # itself from each row's level, so it never takes a pass over the volume of its own.
-    levels = np.where(stable, np.asarray(disp, np.float32), np.float32(np.nan)).reshape(-1)[layout.pixel_of_row]
+    levels = _stable_levels(np.ascontiguousarray(disp, np.float32).reshape(-1),
+                            np.ascontiguousarray(stable).reshape(-1), layout.pixel_of_row)
     return _tree.distance_rows_winners(levels, layout, min_disp=int(min_disp), out=rows, num_disp=int(num_disp))
 
 

@@ -21,6 +21,8 @@ import threading
 
 import numpy as np
 
+from ._parallel import fill_zero
+
 #: Most bytes of volume memory kept between decodes (the oldest go first).
 SPARE_BYTES = 256 * 2 ** 20
 
@@ -98,7 +100,7 @@ def zeroed_volume(shape) -> np.ndarray:
                 break
         else:
             return np.zeros(shape, np.float32)
-    volume.fill(0.0)
+    fill_zero(volume.reshape(-1))
     return volume.reshape(shape)
 
 

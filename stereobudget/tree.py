@@ -28,6 +28,7 @@ import numba
 import numpy as np
 from numba import njit, prange
 
+from ._parallel import take
 from ._prefetch import prefetch_row
 from ._simd import LANES, blend_rows_first_min
 from .errors import ImageReadError, OptionError
@@ -567,6 +568,20 @@ def _aggregate_two_threads(cost, levels, order, parent, weight, out, winners, mi
             _downward_range(order, parent, weight, out, a1, node_count, winners, min_disp, competing)
 
 
+@njit(cache=True, parallel=True)
+def _uint16_keys(image):
+    """``clip(rint(image * 257), 0, 65535)`` as uint16 for a float32 (H, W, C) guide, on both threads."""
+    h, w, channels = image.shape
+    out = np.empty((h, w, channels), dtype=np.uint16)
+    scale = np.float32(257.0)
+    for y in prange(h):
+        for x in range(w):
+            for c in range(channels):
+                key = np.rint(image[y, x, c] * scale)
+                out[y, x, c] = 0 if key < 0 else (65535 if key > 65535 else np.uint16(key))
+    return out
+
+
 @njit(cache=True, nogil=True)
 def _rooted_tree(image, key_count, similarity_of_key, out):
     """Edge keys -> counting sort -> Kruskal -> depth-first rooting at pixel 0, in one kernel
@@ -645,7 +660,8 @@ def _tree_inputs(guide, *, sigma, median_size):
         # Float guides are keyed at 1/257 of a gray level, the resolution of a uint16 guide:
         # far below any similarity difference exp(-w / sigma) can show, and one counting
         # sort then orders the edges (2x faster than a radix sort of float keys).
-        image = np.clip(np.rint(image * np.float32(257.0)), 0, 65535).astype(np.uint16)
+        image = (_uint16_keys(image) if image.dtype == np.float32
+                 else np.clip(np.rint(image * np.float32(257.0)), 0, 65535).astype(np.uint16))
     key_count = 256 if image.dtype == np.uint8 else 65536
     key_scale = _UINT16_TO_8BIT if image.dtype == np.uint16 else 1.0
     # One exp per possible key instead of one per pixel.
@@ -843,7 +859,7 @@ def aggregate_rows_winners(volume: np.ndarray, layout: TreeLayout, *, min_disp: 
     winners = np.empty(layout.height * layout.width, dtype=np.float32)
     if volume.size:
         _walk(volume, layout.rows, layout.parent_row, layout.weight_row, volume, winners, int(min_disp), competing)
-    return winners[layout.row_of_pixel].reshape(layout.height, layout.width)
+    return take(winners, layout.row_of_pixel).reshape(layout.height, layout.width)
 
 
 def aggregate_two_rows_winners(first: np.ndarray, first_layout: TreeLayout, second: np.ndarray,
@@ -884,7 +900,7 @@ def aggregate_two_rows_winners(first: np.ndarray, first_layout: TreeLayout, seco
     _aggregate_pair(first, first_layout.rows, first_layout.parent_row, first_layout.weight_row, second,
                     second_layout.rows, second_layout.parent_row, second_layout.weight_row, winners, int(min_disp),
                     competing)
-    return tuple(w[lay.row_of_pixel].reshape(lay.height, lay.width)
+    return tuple(take(w, lay.row_of_pixel).reshape(lay.height, lay.width)
                  for w, lay in zip(winners, (first_layout, second_layout)))
 
 
@@ -925,7 +941,7 @@ def distance_rows_winners(levels: np.ndarray, layout: TreeLayout, *, min_disp: i
     if out.size:
         _walk(out, layout.rows, layout.parent_row, layout.weight_row, out, winners, int(min_disp), competing,
               levels=levels)
-    return winners[layout.row_of_pixel].reshape(layout.height, layout.width)
+    return take(winners, layout.row_of_pixel).reshape(layout.height, layout.width)
 
 
 def _competing_layers(volume, num_disp):
