@@ -29,7 +29,7 @@ import numpy as np
 from numba import njit, prange
 
 from ._parallel import take
-from ._prefetch import prefetch_row
+from ._prefetch import prefetch_for_write, prefetch_row
 from ._simd import LANES, blend_rows_first_min
 from .errors import ImageReadError, OptionError
 from .winner import refined_winner, subpixel_winner
@@ -230,6 +230,10 @@ def _find_root(link, node):
     return node
 
 
+#: Edges ahead whose union-find entries Kruskal prefetches.
+_KRUSKAL_AHEAD = 8
+
+
 @njit(cache=True, nogil=True)
 def _kruskal_tree_bits(sorted_edges, height, width):
     """Kruskal on pre-sorted grid edges; returns per-node bits of the kept tree edges.
@@ -242,9 +246,17 @@ def _kruskal_tree_bits(sorted_edges, height, width):
     rank = np.zeros(node_count, dtype=np.uint8)
     bits = np.zeros(node_count, dtype=np.uint8)
     kept = 0
-    for e in sorted_edges:
+    edge_count = sorted_edges.shape[0]
+    for i in range(edge_count):
         if kept == node_count - 1:
             break
+        if i + _KRUSKAL_AHEAD < edge_count:
+            # The edges come in key order, scattered over the grid: ask for the
+            # union-find entries of an edge a few ahead while this one is joined.
+            ahead = sorted_edges[i + _KRUSKAL_AHEAD]
+            prefetch_for_write(link, ahead >> 1)
+            prefetch_for_write(link, (ahead >> 1) + (width if ahead & 1 else 1))
+        e = sorted_edges[i]
         p = e >> 1
         down = e & 1
         q = p + width if down else p + 1
