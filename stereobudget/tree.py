@@ -615,8 +615,7 @@ def _rooted_tree_pair(first, first_keys, first_similarity, first_out,
 
     The pool's own worker takes the second tree: a thread started beside it would share
     the two cores with that worker while it still spins after the previous kernel
-    (measured: the tree stage 28.7 ms with a Python thread, ~23 ms with the spinning
-    shortened).
+    (Teddy's tree stage: 28.8 ms with a Python thread, 24.3 ms with this kernel).
     """
     for part in prange(2):
         if part == 0:
