@@ -881,7 +881,7 @@ def aggregate_rows_winners(volume: np.ndarray, layout: TreeLayout, *, min_disp: 
     winners = np.empty(layout.height * layout.width, dtype=np.float32)
     if volume.size:
         _walk(volume, layout.rows, layout.parent_row, layout.weight_row, volume, winners, int(min_disp), competing)
-    return take(winners, layout.row_of_pixel).reshape(layout.height, layout.width)
+    return _in_pixel_order(winners, layout)
 
 
 def aggregate_two_rows_winners(first: np.ndarray, first_layout: TreeLayout, second: np.ndarray,
@@ -922,8 +922,7 @@ def aggregate_two_rows_winners(first: np.ndarray, first_layout: TreeLayout, seco
     _aggregate_pair(first, first_layout.rows, first_layout.parent_row, first_layout.weight_row, second,
                     second_layout.rows, second_layout.parent_row, second_layout.weight_row, winners, int(min_disp),
                     competing)
-    return tuple(take(w, lay.row_of_pixel).reshape(lay.height, lay.width)
-                 for w, lay in zip(winners, (first_layout, second_layout)))
+    return _in_pixel_order(winners[0], first_layout), _in_pixel_order(winners[1], second_layout)
 
 
 def distance_rows_winners(levels: np.ndarray, layout: TreeLayout, *, min_disp: int, out: np.ndarray,
@@ -963,6 +962,11 @@ def distance_rows_winners(levels: np.ndarray, layout: TreeLayout, *, min_disp: i
     if out.size:
         _walk(out, layout.rows, layout.parent_row, layout.weight_row, out, winners, int(min_disp), competing,
               levels=levels)
+    return _in_pixel_order(winners, layout)
+
+
+def _in_pixel_order(winners, layout):
+    """Per-row winners of a walk over ``layout`` as an ``(H, W)`` image in pixel order."""
     return take(winners, layout.row_of_pixel).reshape(layout.height, layout.width)
 
 
