@@ -139,10 +139,12 @@ def _zero_row(out):
 
 
 @njit(cache=True, parallel=True)
-def _blur_grid_rows(src, dst, kernel_s, kernel_r, blocks):
+def _blur_grid_rows(src, dst, spatial, kernel_s, kernel_r, blocks):
     """``dst`` = ``src`` (GY, GX, GZ, K) blurred along y and x by ``kernel_s``, then along z
     by ``kernel_r``, with zero boundaries (taps outside the grid are left out; each sum
-    starts from its first tap inside).
+    starts from its first tap inside); ``spatial`` (GY, GX, K) = ``dst`` summed over
+    intensity, the cells added in intensity order from the first (the slice's
+    spatial-only fallback), while each column is in cache.
 
     The three passes run per grid row: row y's y-blurred slab and one x-blurred column
     of cells at a time stay in cache, so the grid is read once and written once instead
@@ -185,15 +187,22 @@ def _blur_grid_rows(src, dst, kernel_s, kernel_r, blocks):
                         _add_tap(out[z * k:(z + 1) * k], column[(z + t) * k:(z + t + 1) * k], kernel_r[t + rr],
                                  started)
                         started = True
+                total = spatial[y, x]
+                for z in range(gz):
+                    _add_tap(total, out[z * k:(z + 1) * k], np.float32(1.0), z > 0)
 
 
-def _blur_grid(grid: np.ndarray, geom: GridGeometry) -> np.ndarray:
-    """Separable Gaussian blur of a C-contiguous float32 (GY, GX, GZ, K) grid.  ``grid`` is
-    consumed (its memory is handed to :mod:`stereobudget.scratch`)."""
+def _blur_grid(grid: np.ndarray, geom: GridGeometry) -> tuple:
+    """Separable Gaussian blur of a C-contiguous float32 (GY, GX, GZ, K) grid, and the
+    blurred grid summed over intensity, float32 (GY, GX, K).  ``grid`` is consumed (its
+    memory is handed to :mod:`stereobudget.scratch`)."""
+    gy, gx, gz, k = grid.shape
     out = empty_volume(grid.shape)
-    _blur_grid_rows(grid, out, _gaussian_kernel(geom.blur_s), _gaussian_kernel(geom.blur_r), get_num_threads())
+    spatial = np.zeros((gy, gx, k), np.float32)  # zeros: a grid without intensity cells sums to 0
+    _blur_grid_rows(grid, out, spatial, _gaussian_kernel(geom.blur_s), _gaussian_kernel(geom.blur_r),
+                    get_num_threads())
     recycle(grid)
-    return out
+    return out, spatial
 
 
 @njit(cache=True, inline="always")
@@ -327,40 +336,17 @@ class SliceGrids(NamedTuple):
     missing_value: np.float32
 
 
-@njit(cache=True, parallel=True)
-def _sum_over_intensity(grid):
-    """(GY, GX, GZ, K) float32 -> (GY, GX, K): each cell column summed over intensity.
-
-    The cells are added in intensity order, starting from the first: the float32 sums
-    ``grid.sum(axis=2)`` gives for a grid of many channels, in a tenth of its time (for a
-    few channels numpy adds them in another order, so the last bit can differ).
-    """
-    gy, gx, gz, k = grid.shape
-    out = np.empty((gy, gx, k), dtype=np.float32)
-    for job in prange(gy * gx):
-        y = job // gx
-        x = job - y * gx
-        total = out[y, x]
-        if gz == 0:
-            total[:] = 0.0
-            continue
-        first = grid[y, x, 0]
-        for c in range(k):
-            total[c] = first[c]
-        for z in range(1, gz):
-            cell = grid[y, x, z]
-            for c in range(k):
-                total[c] += cell[c]
-    return out
-
-
-def _slice_grids(grid_val, base_w, band_w, geom, *, density, missing_value, first_band_layer=None):
-    """Pack blurred (GY, GX, GZ, C) grids into :class:`SliceGrids` (``band_w=None``: no band)."""
+def _slice_grids(values, base, band, geom, *, density, missing_value, first_band_layer=None):
+    """Pack blurred grids into :class:`SliceGrids`: ``values``, ``base`` and ``band`` are
+    :func:`_blur_grid`'s (grid, spatial sums) pairs of (GY, GX | band, GZ, C) grids
+    (``band=None``: no band)."""
+    (grid_val, spatial_values), (base_w, spatial_base) = values, base
     gy, gx, gz, k = grid_val.shape
     n_base = base_w.shape[3]
-    if band_w is None:
-        band_w = np.zeros((gy, 0, gz, k), np.float32)
+    if band is None:
+        band = np.zeros((gy, 0, gz, k), np.float32), np.zeros((gy, 0, k), np.float32)
         first_band_layer = np.full(gx, k, np.int64)
+    band_w, spatial_band = band
     band = band_w.shape[1]
     # A pixel whose filtered mask weight is this small has, in effect, no sample of its
     # intensity nearby (typical weight is ~ density * cell_s^2).
@@ -368,8 +354,7 @@ def _slice_grids(grid_val, base_w, band_w, geom, *, density, missing_value, firs
     return SliceGrids(
         values=grid_val.reshape(gy * gx * gz, k), base_weights=base_w.reshape(gy * gx * gz, n_base),
         band_weights=band_w.reshape(gy * band * gz, k),
-        spatial_values=_sum_over_intensity(grid_val), spatial_base=_sum_over_intensity(base_w),
-        spatial_band=_sum_over_intensity(band_w),
+        spatial_values=spatial_values, spatial_base=spatial_base, spatial_band=spatial_band,
         first_band_layer=np.asarray(first_band_layer, np.int64),
         layer_base=np.arange(k, dtype=np.int64) % n_base,
         gy=gy, gx=gx, gz=gz, band=band,
@@ -703,11 +688,9 @@ def _lattice_sparse_dsi_grids(left, guide, rows, cols, right_values, right_steps
     first_column = (offset_x + min_disp + np.arange(base_w.shape[3], dtype=np.int64)) % stride
     _splat_lattice_weights(sample_rows, first_column, int(stride), guide,
                            inv_cs, inv_cr, base_w)
-    grid_val = _blur_grid(grid_val, geom)
-    band_w = _blur_grid(band_w, geom)
-    base_w = _blur_grid(base_w, geom)
-    return _slice_grids(grid_val, base_w, band_w, geom, density=len(rows) / float(h * w),
-                        missing_value=truncation, first_band_layer=first_band_layer)
+    return _slice_grids(_blur_grid(grid_val, geom), _blur_grid(base_w, geom), _blur_grid(band_w, geom), geom,
+                        density=len(rows) / float(h * w), missing_value=truncation,
+                        first_band_layer=first_band_layer)
 
 
 def sparse_joint_bilateral(guide: np.ndarray, rows: np.ndarray, cols: np.ndarray, values: np.ndarray, *,
@@ -742,10 +725,8 @@ def sparse_joint_bilateral(guide: np.ndarray, rows: np.ndarray, cols: np.ndarray
     grid_w = np.zeros(geom.shape + (1,), np.float32)
     _splat_points(np.asarray(rows, np.int64), np.asarray(cols, np.int64), values, guide,
                   1.0 / geom.cell_s, 1.0 / geom.cell_r, grid_val, grid_w)
-    grid_val = _blur_grid(grid_val, geom)
-    grid_w = _blur_grid(grid_w, geom)
-    grids = _slice_grids(grid_val, grid_w, None, geom, density=len(rows) / float(h * w),
-                         missing_value=missing_value)
+    grids = _slice_grids(_blur_grid(grid_val, geom), _blur_grid(grid_w, geom), None, geom,
+                         density=len(rows) / float(h * w), missing_value=missing_value)
     volume = slice_volume(guide, grids)
     release_grids(grids)
     return volume
@@ -843,6 +824,5 @@ def sparse_dsi_grids(left: np.ndarray, guide: np.ndarray, rows: np.ndarray, cols
                             np.float32(truncation), int(step_spacing), np.float32(step_weight),
                             np.float32(step_truncation), 1.0 / geom.cell_s, 1.0 / geom.cell_r, grid_val, grid_w,
                             get_num_threads())
-    grid_val = _blur_grid(grid_val, geom)
-    grid_w = _blur_grid(grid_w, geom)
-    return _slice_grids(grid_val, grid_w, None, geom, density=len(rows) / float(h * w), missing_value=truncation)
+    return _slice_grids(_blur_grid(grid_val, geom), _blur_grid(grid_w, geom), None, geom,
+                        density=len(rows) / float(h * w), missing_value=truncation)

@@ -91,19 +91,6 @@ def test_no_samples_nearby_falls_back_to_missing_value():
     assert out[29, 29, 0] == -1.0
 
 
-def test_sum_over_intensity_adds_the_cells_in_intensity_order():
-    from stereobudget.bilateral import _sum_over_intensity
-    rng = np.random.default_rng(21)
-    for shape in [(6, 7, 5, 64), (3, 4, 9, 5), (2, 3, 1, 3), (2, 2, 0, 4)]:
-        grid = (rng.random(shape, dtype=np.float32) * 100).astype(np.float32)
-        expected = np.zeros(shape[:2] + shape[3:], np.float32)
-        if shape[2]:
-            expected[...] = grid[:, :, 0]
-        for z in range(1, shape[2]):
-            expected += grid[:, :, z]
-        np.testing.assert_array_equal(_sum_over_intensity(grid), expected)
-
-
 def _blur_axis_in_tap_order(grid, kernel, axis):
     """One zero-boundary pass: every output starts from its first tap inside the grid and
     adds the others in kernel order (float32 products and sums, as the kernel does)."""
@@ -134,6 +121,12 @@ def test_grid_blur_is_three_passes_bit_for_bit(channels, guide_max):
         t = np.arange(-radius, radius + 1, dtype=np.float64)
         kernel = np.exp(-0.5 * (t / std) ** 2)
         expected = _blur_axis_in_tap_order(expected, (kernel / kernel.sum()).astype(np.float32), axis)
-    blurred = _blur_grid(grid.copy(), geom)
+    blurred, spatial = _blur_grid(grid.copy(), geom)
     assert blurred.dtype == np.float32 and blurred.shape == grid.shape
     np.testing.assert_array_equal(blurred, expected)
+    # The spatial-only fallback: the blurred cells added in intensity order from the first.
+    summed = expected[:, :, 0].copy()
+    for z in range(1, grid.shape[2]):
+        summed += expected[:, :, z]
+    assert spatial.dtype == np.float32
+    np.testing.assert_array_equal(spatial, summed)
