@@ -641,20 +641,37 @@ def _lattice_stride(rows: np.ndarray, cols: np.ndarray, width: int) -> int:
     Full lattice: every sample row holds the same columns ``ox, ox + s, ...`` up to the
     right edge (``ox < s``), and the samples come row by row, columns ascending.
     """
-    if len(rows) < 2:
+    return int(_lattice_stride_of(np.asarray(rows, np.int64), np.asarray(cols, np.int64), int(width)))
+
+
+@njit(cache=True)
+def _lattice_stride_of(rows, cols, width):
+    # One pass instead of numpy's sorts (np.unique took ~0.5 ms per Teddy decode): in
+    # row-major order each row's columns ascend, so the set is a full lattice exactly when
+    # every row repeats the first row's columns and those are evenly spaced.
+    n = rows.shape[0]
+    if n < 2:
         return 0
-    order = rows.astype(np.int64) * width + cols
-    if not np.all(np.diff(order) > 0):
+    n_cols = 1
+    while n_cols < n and rows[n_cols] == rows[0]:
+        n_cols += 1
+    if n_cols < 2 or n % n_cols != 0:
         return 0
-    columns = np.unique(cols)
-    if len(columns) < 2:
+    stride = cols[1] - cols[0]
+    if stride < 1 or cols[0] >= stride or cols[n_cols - 1] + stride < width:
         return 0
-    stride = int(columns[1] - columns[0])
-    if (stride < 1 or columns[0] >= stride or columns[-1] + stride < width
-            or not np.all(np.diff(columns) == stride)):
-        return 0
-    if len(rows) != len(np.unique(rows)) * len(columns):
-        return 0
+    for j in range(1, n_cols):
+        if cols[j] - cols[j - 1] != stride:
+            return 0
+    for k in range(n_cols, n):
+        j = k % n_cols
+        if cols[k] != cols[j]:
+            return 0
+        if j == 0:
+            if rows[k] <= rows[k - 1]:
+                return 0
+        elif rows[k] != rows[k - 1]:
+            return 0
     return stride
 
 
@@ -677,8 +694,9 @@ def _lattice_sparse_dsi_grids(left, guide, rows, cols, right_values, right_steps
 
     grid_val = zeroed_volume(geom.shape + (num_disp,))
     band_w = zeroed_volume((gy, band_n, gz, num_disp))
-    sample_rows = np.unique(np.asarray(rows, np.int64))
-    _splat_lattice_dsi(sample_rows, offset_x, int(stride), len(rows) // max(len(sample_rows), 1),
+    n_cols = (w - 1 - offset_x) // stride + 1  # a lattice row holds every column ox + m * stride < w
+    sample_rows = np.ascontiguousarray(np.asarray(rows, np.int64)[::n_cols])
+    _splat_lattice_dsi(sample_rows, offset_x, int(stride), n_cols,
                        np.ascontiguousarray(right_values, np.float32),
                        np.ascontiguousarray(right_steps, np.float32), left, guide, int(min_disp),
                        np.float32(truncation), int(step_spacing), np.float32(step_weight),

@@ -62,3 +62,45 @@ def test_fill_written_in_any_row_order_holds_the_same_rows(scene, pattern):
     in_rows = bilateral.filled_sparse_dsi(left, guide, rows, cols, values, pixel_of_row=pixel_of_row, **kwargs)
     assert in_rows.shape == (72 * 150, 20)
     np.testing.assert_array_equal(in_rows, in_pixel_order.reshape(-1, 20)[pixel_of_row])
+
+
+def _lattice_stride_by_sets(rows, cols, width):
+    """The lattice test stated with numpy's sets: row-major, evenly spaced columns from
+    ``ox < s`` to the right edge, every (row, column) present once."""
+    if len(rows) < 2 or not np.all(np.diff(rows * width + cols) > 0):
+        return 0
+    columns = np.unique(cols)
+    if len(columns) < 2:
+        return 0
+    stride = int(columns[1] - columns[0])
+    if stride < 1 or columns[0] >= stride or columns[-1] + stride < width or not np.all(np.diff(columns) == stride):
+        return 0
+    return stride if len(rows) == len(np.unique(rows)) * len(columns) else 0
+
+
+def test_lattice_detection_agrees_with_the_set_definition():
+    rng = np.random.default_rng(11)
+    width = 40
+    for trial in range(400):
+        stride = int(rng.integers(1, 7))
+        ox = int(rng.integers(0, stride + 1))                    # ox == stride: not a lattice
+        cols_row = np.arange(ox, width, stride)
+        row_ids = np.sort(rng.choice(30, size=int(rng.integers(1, 6)), replace=False))
+        rows = np.repeat(row_ids, len(cols_row)).astype(np.int64)
+        cols = np.tile(cols_row, len(row_ids)).astype(np.int64)
+        kind = trial % 6
+        if kind == 1 and len(rows) > 1:                          # one sample dropped
+            keep = np.ones(len(rows), bool)
+            keep[rng.integers(len(rows))] = False
+            rows, cols = rows[keep], cols[keep]
+        elif kind == 2 and len(rows) > 1:                        # one column moved
+            cols = cols.copy()
+            cols[rng.integers(len(cols))] += 1
+        elif kind == 3:                                          # a row repeated
+            rows = np.concatenate([rows, rows[-len(cols_row):]])
+            cols = np.concatenate([cols, cols[-len(cols_row):]])
+        elif kind == 4:                                          # stops short of the right edge
+            keep = cols < width - stride - 1
+            rows, cols = rows[keep], cols[keep]
+        expected = _lattice_stride_by_sets(rows, cols, width)
+        assert bilateral._lattice_stride(rows, cols, width) == expected, (trial, stride, ox, kind)
