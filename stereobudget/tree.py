@@ -108,6 +108,9 @@ class TreeLayout:
     weight_row : numpy.ndarray
         float32 ``(N,)``: ``S(node, parent)`` of each row's node.
     height, width : int
+    walk_split : (int, int) or None
+        Where the two-thread walk cuts the rows (:func:`_balanced_subtree`), when the tree
+        kernel took it; None: the walk finds it.
     """
 
     pixel_of_row: np.ndarray
@@ -117,6 +120,7 @@ class TreeLayout:
     weight_row: np.ndarray
     height: int
     width: int
+    walk_split: tuple | None = None
 
 
 # --------------------------------------------------------------------------------------
@@ -496,36 +500,38 @@ def _aggregate_pair(first, first_order, first_parent, first_weight, second, seco
                               min_disp, competing)
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _balanced_subtree(order, parent):
-    """Order position of the non-root node whose subtree is closest to half the tree."""
-    node_count = order.shape[0]
+    """Order position of the non-root node whose subtree is closest to half the tree, and
+    that subtree's size.  An empty ``order`` stands for ``0 .. N-1`` (a layout's rows)."""
+    node_count = parent.shape[0]
+    identity = order.shape[0] == 0
     size = np.ones(node_count, dtype=np.int32)
     for k in range(node_count - 1, 0, -1):
-        v = order[k]
+        v = k if identity else order[k]
         size[parent[v]] += size[v]
     best = 1
     best_gap = node_count
     for k in range(1, node_count):
-        gap = abs(2 * size[order[k]] - node_count)
+        gap = abs(2 * size[k if identity else order[k]] - node_count)
         if gap < best_gap:
             best_gap = gap
             best = k
-    return best, size[order[best]]
+    return best, size[best if identity else order[best]]
 
 
 @njit(cache=True, parallel=True)
-def _aggregate_two_threads(cost, levels, order, parent, weight, out, winners, min_disp, competing):
+def _aggregate_two_threads(cost, levels, order, parent, weight, out, winners, min_disp, competing, a0,
+                           subtree_size):
     """Both passes with the tree cut into a subtree A and the rest B, one thread each.
 
-    In pre-order the subtree of the node at position ``a0`` is the contiguous range
-    ``[a0, a1)``.  Upward, A and B are summed independently, then A's total is carried up
+    In pre-order the subtree of the node at position ``a0`` (``subtree_size`` nodes,
+    :func:`_balanced_subtree`) is the contiguous range ``[a0, a1)``.  Upward, A and B are summed independently, then A's total is carried up
     the path to the root.  Downward, the final aggregate of A's parent is computed along
     that path first, so A and B can again run independently.  Threads never write the
     same row.
     """
     node_count, disparities = out.shape
-    a0, subtree_size = _balanced_subtree(order, parent)
     a1 = a0 + subtree_size
     ready = np.zeros(node_count if cost is not None else 0, dtype=np.uint8)
     for part in prange(2):
@@ -596,32 +602,40 @@ def _uint16_keys(image):
 
 
 @njit(cache=True, nogil=True)
-def _rooted_tree(image, key_count, similarity_of_key, out):
+def _rooted_tree(image, key_count, similarity_of_key, out, split):
     """Edge keys -> counting sort -> Kruskal -> depth-first rooting at pixel 0, in one kernel
     (one compiled object to load instead of four: ~10 ms each for a single-shot decode).
-    Writes ``out`` (:func:`_tree_arrays`); returns the number of nodes reached."""
+    Writes ``out`` (:func:`_tree_arrays`) and, when ``split`` has room for them, the
+    two-thread walk's split of the row layout (:func:`_balanced_subtree`); returns the
+    number of nodes reached."""
     height, width = image.shape[0], image.shape[1]
     keys = np.empty(2 * height * width, dtype=np.int32)
     _edge_keys(image, keys)
     sorted_edges = _counting_sorted_edges(keys, height, width, key_count)
     bits = _kruskal_tree_bits(sorted_edges, height, width)
-    return _depth_first(bits, keys, height, width, 0, similarity_of_key, out)
+    reached = _depth_first(bits, keys, height, width, 0, similarity_of_key, out)
+    if split.shape[0] >= 2 and reached == height * width and reached >= 2:
+        split[0], split[1] = _balanced_subtree(split[:0], out[4])
+    return reached
 
 
 @njit(cache=True, parallel=True)
-def _rooted_tree_pair(first, first_keys, first_similarity, first_out,
-                      second, second_keys, second_similarity, second_out, reached):
+def _rooted_tree_pair(first, first_keys, first_similarity, first_out, first_split,
+                      second, second_keys, second_similarity, second_out, second_split, reached):
     """:func:`_rooted_tree` of two guides, one per thread of numba's pool.
 
     The pool's own worker takes the second tree: a thread started beside it would share
     the two cores with that worker while it still spins after the previous kernel
-    (Teddy's tree stage: 28.8 ms with a Python thread, 24.3 ms with this kernel).
+    (Teddy's tree stage: 28.8 ms with a Python thread, 24.3 ms with this kernel).  The
+    first guide (I1's, the quicker tree with 8-bit keys) also gets its walk split here,
+    in the time its thread would wait for the second tree (0.7 ms on Teddy that the
+    refinement walk otherwise spends on one thread).
     """
     for part in prange(2):
         if part == 0:
-            reached[0] = _rooted_tree(first, first_keys, first_similarity, first_out)
+            reached[0] = _rooted_tree(first, first_keys, first_similarity, first_out, first_split)
         else:
-            reached[1] = _rooted_tree(second, second_keys, second_similarity, second_out)
+            reached[1] = _rooted_tree(second, second_keys, second_similarity, second_out, second_split)
 
 
 # --------------------------------------------------------------------------------------
@@ -658,7 +672,9 @@ def build_tree(guide: np.ndarray, *, sigma: float = 0.1 * 255, median_size: int 
     """
     image, key_count, similarity_of_key = _tree_inputs(guide, sigma=sigma, median_size=median_size)
     out = _tree_arrays(image.shape[0] * image.shape[1])
-    return _rooted_tree_result(out, _rooted_tree(image, key_count, similarity_of_key, out), image.shape)
+    split = np.zeros(2, np.int64)
+    reached = _rooted_tree(image, key_count, similarity_of_key, out, split)
+    return _rooted_tree_result(out, reached, image.shape, split)
 
 
 def _tree_inputs(guide, *, sigma, median_size):
@@ -691,17 +707,19 @@ def _similarity_of_key(key_count, key_scale, sigma):
     return table
 
 
-def _rooted_tree_result(out, reached, shape):
-    """The :class:`MinimumSpanningTree` (with its layout) of arrays :func:`_rooted_tree` wrote."""
+def _rooted_tree_result(out, reached, shape, split=None):
+    """The :class:`MinimumSpanningTree` (with its layout) of arrays :func:`_rooted_tree` wrote
+    (``split``: the walk split it took, if any)."""
     height, width = shape[:2]
     node_count = height * width
     order, parent, weight, row_of_pixel, parent_row, weight_row = out
     if reached != node_count:  # a spanning tree of a grid always reaches every pixel
         raise AssertionError(f"spanning tree reached {reached} of {node_count} pixels")
     tree = MinimumSpanningTree(order=order, parent=parent, weight=weight, height=height, width=width)
+    walk_split = (int(split[0]), int(split[1])) if split is not None and node_count >= 2 else None
     tree._layout.append(TreeLayout(pixel_of_row=order, row_of_pixel=row_of_pixel,
                                    rows=np.arange(node_count, dtype=np.int32), parent_row=parent_row,
-                                   weight_row=weight_row, height=height, width=width))
+                                   weight_row=weight_row, height=height, width=width, walk_split=walk_split))
     return tree
 
 
@@ -789,18 +807,21 @@ def _aggregate(cost, tree, *, out, min_disp):
     return out, (winners.reshape(tree.height, tree.width) if take_winners else None)
 
 
-def _walk(cost, order, parent, weight, out, winners, min_disp, competing, *, levels=None):
+def _walk(cost, order, parent, weight, out, winners, min_disp, competing, *, levels=None, split=None):
     """Both passes over ``(N, D)`` rows: on two threads for large trees, else on one.
 
     Winners are taken among the first ``competing`` layers.  ``levels``: the cost is
     Yang's refinement cost of these levels (:func:`_distance_row`), ``cost`` is not read.
+    ``split``: the tree's :func:`_balanced_subtree`, if already known.
     """
     if levels is None and cost.shape == out.shape and cost.ctypes.data == out.ctypes.data:
         cost = None  # aggregated in place
     if order.shape[0] < _PARALLEL_MIN_NODES or numba.get_num_threads() < 2:
         _aggregate_serial(cost, levels, order, parent, weight, out, winners, min_disp, competing)
     else:
-        _aggregate_two_threads(cost, levels, order, parent, weight, out, winners, min_disp, competing)
+        a0, subtree_size = split if split is not None else _balanced_subtree(order, parent)
+        _aggregate_two_threads(cost, levels, order, parent, weight, out, winners, min_disp, competing, a0,
+                               subtree_size)
 
 
 def tree_layout(tree: MinimumSpanningTree) -> TreeLayout:
@@ -847,8 +868,10 @@ def build_trees(guides, *, sigma: float = 0.1 * 255, median_size: int = 3) -> li
         inputs = [_tree_inputs(g, sigma=sigma, median_size=median_size) for g in guides[:2]]
         outs = [_tree_arrays(image.shape[0] * image.shape[1]) for image, _, _ in inputs]
         reached = np.zeros(2, np.int64)
-        _rooted_tree_pair(*inputs[0], outs[0], *inputs[1], outs[1], reached)
-        trees += [_rooted_tree_result(out, int(r), image.shape) for out, r, (image, _, _) in zip(outs, reached, inputs)]
+        splits = [np.zeros(2, np.int64), np.zeros(0, np.int64)]  # the second tree's walks run unsplit
+        _rooted_tree_pair(*inputs[0], outs[0], splits[0], *inputs[1], outs[1], splits[1], reached)
+        trees += [_rooted_tree_result(out, int(r), image.shape, split if split.size else None)
+                  for out, r, (image, _, _), split in zip(outs, reached, inputs, splits)]
         guides = guides[2:]
     return trees + [build_tree(g, sigma=sigma, median_size=median_size) for g in guides]
 
@@ -880,7 +903,8 @@ def aggregate_rows_winners(volume: np.ndarray, layout: TreeLayout, *, min_disp: 
     competing = _competing_layers(volume, num_disp)
     winners = np.empty(layout.height * layout.width, dtype=np.float32)
     if volume.size:
-        _walk(volume, layout.rows, layout.parent_row, layout.weight_row, volume, winners, int(min_disp), competing)
+        _walk(volume, layout.rows, layout.parent_row, layout.weight_row, volume, winners, int(min_disp), competing,
+              split=layout.walk_split)
     return _in_pixel_order(winners, layout)
 
 
@@ -961,7 +985,7 @@ def distance_rows_winners(levels: np.ndarray, layout: TreeLayout, *, min_disp: i
     winners = np.empty(layout.height * layout.width, dtype=np.float32)
     if out.size:
         _walk(out, layout.rows, layout.parent_row, layout.weight_row, out, winners, int(min_disp), competing,
-              levels=levels)
+              levels=levels, split=layout.walk_split)
     return _in_pixel_order(winners, layout)
 
 

@@ -287,8 +287,9 @@ def test_two_thread_split_equals_bruteforce():
     similarity, tree = tree_distance_similarity_bruteforce(guide, sigma=SIGMA, median_size=3)
     expected = similarity @ cost.reshape(-1, 5).astype(np.float64)
     out = np.empty((156, 5), np.float32)
+    a0, subtree_size = tree_module._balanced_subtree(tree.order, tree.parent)
     tree_module._aggregate_two_threads(cost.reshape(-1, 5), None, tree.order, tree.parent,
-                                       tree.weight, out, np.empty(0, np.float32), 0, 5)
+                                       tree.weight, out, np.empty(0, np.float32), 0, 5, a0, subtree_size)
     np.testing.assert_allclose(out, expected, rtol=1e-4)
 
 
@@ -527,3 +528,21 @@ def test_build_trees_matches_build_tree_on_each_guide_and_keeps_the_layouts():
             # The layout was made with the tree and is reused, not rebuilt.
             assert tree_layout(tree) is tree_layout(tree)
             np.testing.assert_array_equal(tree_layout(tree).row_of_pixel, tree_layout(alone).row_of_pixel)
+
+
+def test_tree_kernel_takes_the_walk_split_of_its_rows():
+    rng = np.random.default_rng(31)
+    left = random_guide(rng, 40, 50)
+    right = cv2.GaussianBlur(random_guide(rng, 40, 50), (0, 0), 1.5).astype(np.float32)
+    single = tree_layout(build_tree(left))
+    first, second = (tree_layout(t) for t in build_trees([left, right]))
+    for layout in (single, first):
+        expected = tree_module._balanced_subtree(layout.rows, layout.parent_row)
+        assert layout.walk_split == tuple(int(v) for v in expected)
+        # The subtree starts at that row and spans a contiguous run of rows (pre-order).
+        a0, size = layout.walk_split
+        assert 1 <= a0 < 2000 and 1 <= size < 2000 and a0 + size <= 2000
+    assert second.walk_split is None  # the pair's second tree is walked on one thread
+    built = build_tree(left)  # the same tree made into a layout afterwards: the walk finds the split
+    rebuilt = MinimumSpanningTree(order=built.order, parent=built.parent, weight=built.weight, height=40, width=50)
+    assert tree_layout(rebuilt).walk_split is None
