@@ -147,19 +147,27 @@ class DecodeResult:
 
 
 class _Timer:
+    """``with timer(stage):`` adds the block's wall time to ``timings[stage]``."""
+
     def __init__(self):
         self.timings = {}
 
     def __call__(self, name):
-        timer = self
+        return _Stage(self.timings, name)
 
-        class _Ctx:
-            def __enter__(self):
-                self.t0 = time.perf_counter()
 
-            def __exit__(self, *exc):
-                timer.timings[name] = timer.timings.get(name, 0.0) + time.perf_counter() - self.t0
-        return _Ctx()
+class _Stage:
+    # A plain class made once (a class made per stage cost ~0.3 ms per decode).
+    __slots__ = ("timings", "name", "start")
+
+    def __init__(self, timings, name):
+        self.timings, self.name = timings, name
+
+    def __enter__(self):
+        self.start = time.perf_counter()
+
+    def __exit__(self, *exc):
+        self.timings[self.name] = self.timings.get(self.name, 0.0) + time.perf_counter() - self.start
 
 
 def median_filter_disparity(disparity: np.ndarray, size: int) -> np.ndarray:
