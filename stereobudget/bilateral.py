@@ -559,80 +559,135 @@ def _splat_sparse_dsi_split(rows, cols, right_values, right_steps, left, guide, 
                 _splat_cost(values_flat, band_flat, offsets, band_offsets, weights, i, cost)
 
 
-@njit(cache=True, parallel=True)
-def _splat_lattice_dsi(sample_rows, offset_x, stride, n_cols, right_values, right_steps, left, guide, min_disp,
-                       truncation, step_spacing, step_weight, step_truncation, inv_cs, inv_cr,
-                       grid_val, band_w, blocks):
-    """:func:`_splat_sparse_dsi_split` for a full sample lattice, walking the left pixels of each sample row.
+@njit(cache=True, inline="always")
+def _splat_lattice_rows(r_lo, r_hi, cell_lo, cell_hi, sample_rows, offset_x, stride, n_cols, right_values,
+                        right_steps, left, guide, min_disp, truncation, step_spacing, step_weight, step_truncation,
+                        inv_cs, inv_cr, grid_val, band_w, base_w, channel_of_residue):
+    """Splat sample rows ``[r_lo, r_hi)`` into the grids' cells whose y index lies in
+    ``[cell_lo, cell_hi]``: every layer's cost into ``grid_val``, the band's weights into
+    ``band_w`` and each left pixel's mask weight into its base channel of ``base_w``.
 
     Left pixel x of sample row ``r`` meets a sample in every layer ``i`` whose column
     ``x - min_disp - i`` is on the lattice: one layer in ``stride``.  Its hat weights are
-    the same in all of them, so they are computed once per pixel instead of once per
-    (sample, layer), and the 8 corner rows it adds into stay in cache.  For each (cell,
-    layer) the samples still arrive in row-major order, so every sum is bit-for-bit that
-    of the per-sample kernel.  Sample ``k = r * n_cols + j`` is at column
-    ``offset_x + j * stride``; ``min_disp >= 0``.
+    the same in all of them, so they are computed once per pixel, and the 8 cells it adds
+    into stay in cache.  Base channel ``channel_of_residue[x % stride]`` holds the mask of
+    the lattice columns congruent to x (-1: none).
     """
     gy_n, gx_n, gz_n, num_disp = grid_val.shape
     w = left.shape[1]
-    blocks = max(1, min(blocks, num_disp))
     band_n = band_w.shape[1]
+    n_base = base_w.shape[3]
     values_flat = grid_val.reshape(grid_val.size)
     band_flat = band_w.reshape(band_w.size)
-    for block in prange(blocks):
-        first, last = _layer_block(block, blocks, num_disp)
-        weights = np.empty(8, dtype=np.float64)
-        offsets = np.empty(8, dtype=np.uint64)
-        band_offsets = np.empty(8, dtype=np.int64)
-        for r in range(sample_rows.shape[0]):
-            y = sample_rows[r]
-            y0, ty = _hat(y * inv_cs, gy_n)
-            # (reach - first) % stride, stepped along with x instead of divided per pixel.
-            residue = (-min_disp - offset_x - first) % stride
-            for x in range(w):
-                reach = x - min_disp - offset_x         # layer whose sample is the first column
-                i_max = min(last - 1, reach)
-                i_first = first + residue
-                residue += 1
-                if residue == stride:
-                    residue = 0
-                if i_first > i_max:
-                    continue
-                left_step = _left_step(guide, y, x, step_spacing, step_weight)
-                x0, tx = _hat(x * inv_cs, gx_n)
-                z0, tz = _hat(guide[y, x] * inv_cr, gz_n)
-                _corner_weights(ty, tx, tz, weights)
-                _corner_offsets(y0, x0, z0, gx_n, gz_n, band_n, num_disp, offsets, band_offsets)
-                # Sample of layer i: column (reach - i) / stride of the row, one less per step
-                # (counted down instead of divided per layer: the division was a third of the kernel).
-                k = r * n_cols + (reach - i_first) // stride
-                for i in range(i_first, i_max + 1, stride):
-                    cost = sparse_pair_cost(left[y, x], right_values[k], left_step, right_steps[k], truncation,
-                                            step_weight, step_truncation)
-                    _splat_cost(values_flat, band_flat, offsets, band_offsets, weights, i, cost)
-                    k -= 1
-
-
-@njit(cache=True)
-def _splat_lattice_weights(sample_rows, first_column, stride, guide, inv_cs, inv_cr, base_w):
-    """Base weight channel b: every column ``first_column[b] + m * stride`` of every sample row."""
-    gy_n, gx_n, gz_n, n_base = base_w.shape
-    w = guide.shape[1]
+    base_flat = base_w.reshape(base_w.size)
     weights = np.empty(8, dtype=np.float64)
-    for r in range(sample_rows.shape[0]):
+    offsets = np.empty(8, dtype=np.uint64)
+    band_offsets = np.empty(8, dtype=np.int64)
+    for r in range(r_lo, r_hi):
         y = sample_rows[r]
         y0, ty = _hat(y * inv_cs, gy_n)
-        for ch in range(n_base):
-            for x in range(first_column[ch], w, stride):
-                x0, tx = _hat(x * inv_cs, gx_n)
-                z0, tz = _hat(guide[y, x] * inv_cr, gz_n)
-                _corner_weights(ty, tx, tz, weights)
+        # The corners a (cell y0 + a) this call may write: 4 of the 8 per allowed a.
+        c_lo = 4 * max(0, cell_lo - y0)
+        c_hi = 4 * (min(1, cell_hi - y0) + 1)
+        if c_lo >= c_hi:
+            continue
+        all_corners = c_lo == 0 and c_hi == 8
+        # (reach % stride), stepped along with x instead of divided per pixel.
+        residue = (-min_disp - offset_x) % stride
+        column_residue = 0  # x % stride
+        for x in range(w):
+            reach = x - min_disp - offset_x  # layer whose sample is the row's first column
+            i_max = min(num_disp - 1, reach)
+            i_first = residue
+            residue += 1
+            if residue == stride:
+                residue = 0
+            channel = channel_of_residue[column_residue]
+            column_residue += 1
+            if column_residue == stride:
+                column_residue = 0
+            if i_first > i_max and channel < 0:
+                continue
+            x0, tx = _hat(x * inv_cs, gx_n)
+            z0, tz = _hat(guide[y, x] * inv_cr, gz_n)
+            _corner_weights(ty, tx, tz, weights)
+            _corner_offsets(y0, x0, z0, gx_n, gz_n, band_n, num_disp, offsets, band_offsets)
+            if channel >= 0:
                 c = 0
                 for a in range(2):
                     for b in range(2):
                         for e in range(2):
-                            base_w[y0 + a, x0 + b, z0 + e, ch] += weights[c]
+                            if all_corners or c_lo <= c < c_hi:
+                                cell = ((y0 + a) * gx_n + (x0 + b)) * gz_n + (z0 + e)
+                                base_flat[np.uint64(cell * n_base + channel)] += weights[c]
                             c += 1
+            if i_first > i_max:
+                continue
+            left_step = _left_step(guide, y, x, step_spacing, step_weight)
+            # Sample of layer i: column (reach - i) / stride of the row, one less per step.
+            k = r * n_cols + (reach - i_first) // stride
+            for i in range(i_first, i_max + 1, stride):
+                cost = sparse_pair_cost(left[y, x], right_values[k], left_step, right_steps[k], truncation,
+                                        step_weight, step_truncation)
+                if all_corners:  # a fixed trip count: the 8 adds unrolled
+                    _splat_cost(values_flat, band_flat, offsets, band_offsets, weights, i, cost)
+                else:
+                    for c in range(c_lo, c_hi):
+                        values_flat[offsets[c] + np.uint64(i)] += weights[c] * cost
+                        if band_offsets[c] >= 0:
+                            band_flat[np.uint64(band_offsets[c] + i)] += weights[c]
+                k -= 1
+
+
+@njit(cache=True, parallel=True)
+def _splat_lattice(sample_rows, offset_x, stride, n_cols, right_values, right_steps, left, guide, min_disp,
+                   truncation, step_spacing, step_weight, step_truncation, inv_cs, inv_cr,
+                   grid_val, band_w, base_w, channel_of_residue, part_rows):
+    """All sample rows of a full lattice into the value, band and base-weight grids, the
+    rows cut into parts ``[part_rows[p], part_rows[p + 1])``, one per thread.
+
+    Every sum of a cell must receive its terms in the order of a single row-major pass,
+    so that the result is that of the per-sample kernel bit for bit.  A part writes
+    only the cells below the reach of the parts above it; the cells it shares with the
+    part above (the rows of cells where the parts meet) it adds after every part has
+    finished its own, i.e. after the part above.  Parts must be tall enough that only
+    neighbours share cells (``_lattice_parts``).
+    """
+    gy_n = grid_val.shape[0]
+    parts = part_rows.shape[0] - 1
+    for p in prange(parts):
+        # Cells up to the last one the part above reaches wait for the second loop.
+        shared_hi = -1 if p == 0 else _hat(sample_rows[part_rows[p] - 1] * inv_cs, gy_n)[0] + 1
+        _splat_lattice_rows(part_rows[p], part_rows[p + 1], shared_hi + 1, gy_n, sample_rows, offset_x, stride,
+                            n_cols, right_values, right_steps, left, guide, min_disp, truncation, step_spacing,
+                            step_weight, step_truncation, inv_cs, inv_cr, grid_val, band_w, base_w,
+                            channel_of_residue)
+    for p in prange(parts):
+        if p > 0:
+            shared_hi = _hat(sample_rows[part_rows[p] - 1] * inv_cs, gy_n)[0] + 1
+            _splat_lattice_rows(part_rows[p], part_rows[p + 1], 0, shared_hi, sample_rows, offset_x, stride,
+                                n_cols, right_values, right_steps, left, guide, min_disp, truncation, step_spacing,
+                                step_weight, step_truncation, inv_cs, inv_cr, grid_val, band_w, base_w,
+                                channel_of_residue)
+
+
+def _lattice_parts(sample_rows: np.ndarray, inv_cs: float, gy: int, parts: int) -> np.ndarray:
+    """Row bounds of ``parts`` contiguous parts of the sample rows for :func:`_splat_lattice`,
+    fewer when parts would be too short for only neighbouring parts to share grid cells."""
+    count = len(sample_rows)
+
+    def cell(r):  # the hat's first cell, as _hat takes it
+        return min(max(int(np.floor(sample_rows[r] * inv_cs)), 0), gy - 2)
+
+    while parts > 1:
+        bounds = np.array([p * count // parts for p in range(parts + 1)], np.int64)
+        # The part below starts sharing at most the cells reached by this part's last row,
+        # and must not reach the cells of the part above this one.
+        if all(bounds[p + 1] - bounds[p] >= 2 for p in range(parts)) and all(
+                cell(bounds[p + 1]) > cell(bounds[p] - 1) + 1 for p in range(1, parts - 1)):
+            return bounds
+        parts -= 1
+    return np.array([0, count], np.int64)
 
 
 def _lattice_stride(rows: np.ndarray, cols: np.ndarray, width: int) -> int:
@@ -696,16 +751,15 @@ def _lattice_sparse_dsi_grids(left, guide, rows, cols, right_values, right_steps
     band_w = zeroed_volume((gy, band_n, gz, num_disp))
     n_cols = (w - 1 - offset_x) // stride + 1  # a lattice row holds every column ox + m * stride < w
     sample_rows = np.ascontiguousarray(np.asarray(rows, np.int64)[::n_cols])
-    _splat_lattice_dsi(sample_rows, offset_x, int(stride), n_cols,
-                       np.ascontiguousarray(right_values, np.float32),
-                       np.ascontiguousarray(right_steps, np.float32), left, guide, int(min_disp),
-                       np.float32(truncation), int(step_spacing), np.float32(step_weight),
-                       np.float32(step_truncation), inv_cs, inv_cr, grid_val, band_w,
-                       get_num_threads())
     base_w = np.zeros(geom.shape + (min(stride, num_disp),), np.float32)
-    first_column = (offset_x + min_disp + np.arange(base_w.shape[3], dtype=np.int64)) % stride
-    _splat_lattice_weights(sample_rows, first_column, int(stride), guide,
-                           inv_cs, inv_cr, base_w)
+    # Base channel b holds the mask of lattice columns (offset_x + min_disp + b) % stride (mod stride).
+    channel_of_residue = np.full(stride, -1, np.int64)
+    channel_of_residue[(offset_x + min_disp + np.arange(base_w.shape[3], dtype=np.int64)) % stride] = \
+        np.arange(base_w.shape[3])
+    _splat_lattice(sample_rows, offset_x, int(stride), n_cols, np.ascontiguousarray(right_values, np.float32),
+                   np.ascontiguousarray(right_steps, np.float32), left, guide, int(min_disp), np.float32(truncation),
+                   int(step_spacing), np.float32(step_weight), np.float32(step_truncation), inv_cs, inv_cr, grid_val,
+                   band_w, base_w, channel_of_residue, _lattice_parts(sample_rows, inv_cs, gy, get_num_threads()))
     return _slice_grids(_blur_grid(grid_val, geom), _blur_grid(base_w, geom), _blur_grid(band_w, geom), geom,
                         density=len(rows) / float(h * w), missing_value=truncation,
                         first_band_layer=first_band_layer)

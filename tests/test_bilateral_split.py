@@ -104,3 +104,42 @@ def test_lattice_detection_agrees_with_the_set_definition():
             rows, cols = rows[keep], cols[keep]
         expected = _lattice_stride_by_sets(rows, cols, width)
         assert bilateral._lattice_stride(rows, cols, width) == expected, (trial, stride, ox, kind)
+
+
+@pytest.mark.parametrize("parts", [1, 2, 3, 4])
+def test_lattice_splat_in_row_parts_is_bit_identical(scene, monkeypatch, parts):
+    # Threads splat contiguous parts of the sample rows; the grid cells where two parts
+    # meet are added after the part above, so every sum keeps the single pass's order.
+    # 72 rows at stride 3 with sigma_s 6 (3 px cells): 24 sample rows over 25 cell rows.
+    stride = 3
+    pattern = SamplingPattern("grid", stride, stride, 1, 2)
+    left, guide, rows, cols, values, samples = _inputs(scene, pattern)
+    lattice = to_gray(values.reshape(grid_shape(pattern, samples.height, samples.width) + (-1,)))
+    kwargs = dict(min_disp=1, num_disp=16, sigma_s=2.0 * stride, sigma_r=15.0, truncation=15.0,
+                  right_steps=sample_row_steps(lattice).ravel(), step_spacing=stride, step_weight=0.4,
+                  cells_per_sigma_s=2.0, cells_per_sigma_r=1.0)
+    chosen = []
+    lattice_parts = bilateral._lattice_parts
+
+    def parts_of(sample_rows, inv_cs, gy, _threads):
+        bounds = lattice_parts(sample_rows, inv_cs, gy, parts)
+        chosen.append(len(bounds) - 1)
+        return bounds
+
+    monkeypatch.setattr(bilateral, "_lattice_parts", parts_of)
+    split = bilateral.filled_sparse_dsi(left, guide, rows, cols, values, **kwargs)
+    assert chosen == [parts]
+    monkeypatch.setattr(bilateral, "_lattice_stride", lambda *args: 0)
+    per_sample = bilateral.filled_sparse_dsi(left, guide, rows, cols, values, **kwargs)
+    np.testing.assert_array_equal(split, per_sample)
+
+
+def test_lattice_parts_keep_shared_cells_between_neighbours():
+    sample_rows = np.arange(2, 72, 5, dtype=np.int64)         # 14 rows, cells of 10 px
+    for parts in (2, 3, 4, 8):
+        bounds = bilateral._lattice_parts(sample_rows, 0.1, 9, parts)
+        assert bounds[0] == 0 and bounds[-1] == len(sample_rows) and np.all(np.diff(bounds) >= 2)
+        cells = np.minimum(np.floor(sample_rows * 0.1).astype(int), 7)
+        for p in range(1, len(bounds) - 2):                    # a part never reaches two parts up
+            assert cells[bounds[p + 1]] > cells[bounds[p] - 1] + 1
+    assert len(bilateral._lattice_parts(sample_rows[:3], 0.1, 9, 2)) == 2   # too short to split: one part
