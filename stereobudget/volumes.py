@@ -121,18 +121,20 @@ def _pair_rows(left, right, left_grad, right_grad, min_disp, truncation, grad_tr
                 if x + _PREFETCH_AHEAD < w:
                     prefetch_row(left_flat, left_row_of_pixel[y * w + x + _PREFETCH_AHEAD], num_disp)
                 o = buffer[x]
+                target = left_rows[left_row_of_pixel[y * w + x]]
                 if use_grids:
                     slice_pixel(grids, guide, y, x, o, den_base, den, corner_index, band_index, corner_weight)
                     dense_pixel_costs(left, left_grad, y, x, rev, min_disp, first_column, truncation,
                                       grad_truncation, grad_weight, dense)
-                    for i in range(num_disp):
-                        o[i] = grid_weight * o[i] + dense_weight * dense[i]
+                    for i in range(num_disp):  # the mix stored to the buffer and the volume in one loop
+                        mixed = grid_weight * o[i] + dense_weight * dense[i]
+                        o[i] = mixed
+                        target[i] = mixed
                 else:
                     dense_pixel_costs(left, left_grad, y, x, rev, min_disp, first_column, truncation,
                                       grad_truncation, grad_weight, o)
-                target = left_rows[left_row_of_pixel[y * w + x]]
-                for i in range(num_disp):
-                    target[i] = o[i]
+                    for i in range(num_disp):
+                        target[i] = o[i]
             if with_right:
                 _gather_right_rows(buffer, y, min_disp, right_rows, right_flat, right_row_of_pixel, starts)
 
