@@ -138,15 +138,25 @@ def dense_pixel_costs(left, left_grad, y, x, rev, min_disp, first_column, trunca
     start = span - 1 - (x - min_disp - first_column)
     # Slices, not rev[ch, start + i]: numba wraps negative indices, and that check on a
     # computed index keeps LLVM from vectorising the loops (measured 5x slower).
-    lp = left[y, x, 0]
-    row = rev[0, start:start + num_disp]
-    for i in range(num_disp):
-        acc[i] = abs(lp - row[i])
-    for ch in range(1, channels):
-        lp = left[y, x, ch]
-        row = rev[ch, start:start + num_disp]
+    if channels == 3:
+        # RGB: the three channel terms summed in registers, one pass instead of three
+        # (the same additions in the same order).
+        red, green, blue = left[y, x, 0], left[y, x, 1], left[y, x, 2]
+        row_r = rev[0, start:start + num_disp]
+        row_g = rev[1, start:start + num_disp]
+        row_b = rev[2, start:start + num_disp]
         for i in range(num_disp):
-            acc[i] += abs(lp - row[i])
+            acc[i] = abs(red - row_r[i]) + abs(green - row_g[i]) + abs(blue - row_b[i])
+    else:
+        lp = left[y, x, 0]
+        row = rev[0, start:start + num_disp]
+        for i in range(num_disp):
+            acc[i] = abs(lp - row[i])
+        for ch in range(1, channels):
+            lp = left[y, x, ch]
+            row = rev[ch, start:start + num_disp]
+            for i in range(num_disp):
+                acc[i] += abs(lp - row[i])
     if grad_weight > 0:
         lg = left_grad[y, x]
         grad = rev[channels, start:start + num_disp]
