@@ -269,7 +269,31 @@ def noise_level(image_f32: np.ndarray, *, block: int = 8, percentile: float = 20
     if h < 3 * block or w < 3 * block:
         return 0.0
     kernel = np.array([[1, -2, 1], [-2, 4, -2], [1, -2, 1]], np.float32)
-    response = np.abs(cv2.filter2D(gray, -1, kernel, borderType=cv2.BORDER_REFLECT))
-    tiles = response[: h // block * block, : w // block * block]
-    tiles = tiles.reshape(h // block, block, w // block, block).mean(axis=(1, 3))
+    response = cv2.filter2D(gray, -1, kernel, borderType=cv2.BORDER_REFLECT)
+    if block == 8:
+        tiles = _abs_tile_means_8(response)
+    else:
+        tiles = np.abs(response[: h // block * block, : w // block * block])
+        tiles = tiles.reshape(h // block, block, w // block, block).mean(axis=(1, 3))
     return float(np.sqrt(np.pi / 2.0) / 6.0 * np.percentile(tiles, percentile))
+
+
+@njit(cache=True, parallel=True)
+def _abs_tile_means_8(response):
+    """Mean of ``|response|`` over each whole 8 x 8 tile, float32: numpy's
+    ``mean(axis=(1, 3))`` of the tiled view with numpy's order of additions for two or
+    more tiles a side (each tile row's 8 values summed pairwise, the rows added in turn,
+    divided by 64; :func:`noise_level` needs three), on both threads instead of numpy's
+    pass on one (0.6 ms on Teddy)."""
+    rows, cols = response.shape[0] // 8, response.shape[1] // 8
+    out = np.empty((rows, cols), dtype=np.float32)
+    count = np.float32(64.0)
+    for tile_row in prange(rows):
+        for tile_col in range(cols):
+            total = np.float32(0.0)
+            for r in range(8):
+                v = response[tile_row * 8 + r, tile_col * 8:tile_col * 8 + 8]
+                total += (((abs(v[0]) + abs(v[1])) + (abs(v[2]) + abs(v[3])))
+                          + ((abs(v[4]) + abs(v[5])) + (abs(v[6]) + abs(v[7]))))
+            out[tile_row, tile_col] = total / count
+    return out

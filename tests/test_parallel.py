@@ -59,3 +59,16 @@ def test_horizontal_gradient_is_numpys_central_difference(shape):
     got = horizontal_gradient(gray)
     assert got.dtype == np.float32
     np.testing.assert_array_equal(got, expected)
+
+
+@pytest.mark.parametrize("shape", [(16, 16), (24, 31), (375, 450), (100, 17)])
+def test_tile_means_are_numpys_mean_over_tiles(shape):
+    from stereobudget.cost import _abs_tile_means_8
+    rng = np.random.default_rng(shape[0])
+    for scale in (0.5, 40.0, 3000.0):
+        response = rng.normal(0, scale, shape).astype(np.float32)
+        h, w = shape[0] // 8 * 8, shape[1] // 8 * 8
+        expected = np.abs(response[:h, :w]).reshape(h // 8, 8, w // 8, 8).mean(axis=(1, 3))
+        got = _abs_tile_means_8(response)
+        assert got.dtype == np.float32
+        np.testing.assert_array_equal(got, expected)
