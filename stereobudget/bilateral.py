@@ -696,37 +696,24 @@ def _lattice_stride(rows: np.ndarray, cols: np.ndarray, width: int) -> int:
     Full lattice: every sample row holds the same columns ``ox, ox + s, ...`` up to the
     right edge (``ox < s``), and the samples come row by row, columns ascending.
     """
-    return int(_lattice_stride_of(np.asarray(rows, np.int64), np.asarray(cols, np.int64), int(width)))
-
-
-@njit(cache=True)
-def _lattice_stride_of(rows, cols, width):
-    # One pass instead of numpy's sorts (np.unique took ~0.5 ms per Teddy decode): in
-    # row-major order each row's columns ascend, so the set is a full lattice exactly when
-    # every row repeats the first row's columns and those are evenly spaced.
-    n = rows.shape[0]
+    # In row-major order each row's columns ascend, so the set is a full lattice exactly
+    # when every row repeats the first row's columns and those are evenly spaced: a few
+    # passes over the samples instead of numpy's sorts (np.unique: ~0.5 ms per Teddy decode).
+    rows, cols = np.asarray(rows, np.int64), np.asarray(cols, np.int64)
+    n = len(rows)
     if n < 2:
         return 0
-    n_cols = 1
-    while n_cols < n and rows[n_cols] == rows[0]:
-        n_cols += 1
-    if n_cols < 2 or n % n_cols != 0:
+    other_row = rows != rows[0]
+    n_cols = int(other_row.argmax()) if other_row.any() else n
+    if n_cols < 2 or n % n_cols:
         return 0
-    stride = cols[1] - cols[0]
-    if stride < 1 or cols[0] >= stride or cols[n_cols - 1] + stride < width:
+    first = cols[:n_cols]
+    stride = int(first[1] - first[0])
+    if stride < 1 or first[0] >= stride or first[-1] + stride < width or np.any(np.diff(first) != stride):
         return 0
-    for j in range(1, n_cols):
-        if cols[j] - cols[j - 1] != stride:
-            return 0
-    for k in range(n_cols, n):
-        j = k % n_cols
-        if cols[k] != cols[j]:
-            return 0
-        if j == 0:
-            if rows[k] <= rows[k - 1]:
-                return 0
-        elif rows[k] != rows[k - 1]:
-            return 0
+    by_row, cols_by_row = rows.reshape(-1, n_cols), cols.reshape(-1, n_cols)
+    if np.any(cols_by_row != first) or np.any(by_row != by_row[:, :1]) or np.any(np.diff(by_row[:, 0]) <= 0):
+        return 0
     return stride
 
 

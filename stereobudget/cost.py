@@ -97,8 +97,9 @@ def sample_row_steps(lattice_gray: np.ndarray) -> np.ndarray:
 
 
 @njit(cache=True, inline="always")
-def reversed_right_row(right, right_grad, y, first_column, use_grad, rev):
-    """Fill ``rev`` (C + 1, span) with row ``y`` of I2 and its gradient, reversed, for :func:`dense_pixel_costs`.
+def reversed_right_row(right, right_gray, y, first_column, use_grad, rev):
+    """Fill ``rev`` (C + 1, span) with row ``y`` of I2 and its gradient (:func:`gradient_at`
+    of ``right_gray``), reversed, for :func:`dense_pixel_costs`.
 
     Column ``k`` holds I2 column ``first_column + span - 1 - k`` clamped to the border
     (standard practice outside the image), so the layers of a pixel read it forwards
@@ -115,11 +116,11 @@ def reversed_right_row(right, right_grad, y, first_column, use_grad, rev):
             xr = w - 1
         for ch in range(channels):
             rev[ch, k] = right[y, xr, ch]
-        rev[channels, k] = right_grad[y, xr] if use_grad else np.float32(0.0)
+        rev[channels, k] = gradient_at(right_gray, y, xr) if use_grad else np.float32(0.0)
 
 
 @njit(cache=True, inline="always")
-def dense_pixel_costs(left, left_grad, y, x, rev, min_disp, first_column, truncation, grad_truncation,
+def dense_pixel_costs(left, left_gray, y, x, rev, min_disp, first_column, truncation, grad_truncation,
                       grad_weight, acc):
     """Eq. (1) for left pixel (y, x) at every layer: ``acc[i]`` = cost against I2 column ``x - min_disp - i``.
 
@@ -158,7 +159,7 @@ def dense_pixel_costs(left, left_grad, y, x, rev, min_disp, first_column, trunca
             for i in range(num_disp):
                 acc[i] += abs(lp - row[i])
     if grad_weight > 0:
-        lg = left_grad[y, x]
+        lg = gradient_at(left_gray, y, x)
         grad = rev[channels, start:start + num_disp]
         for i in range(num_disp):
             g = min(abs(lg - grad[i]), grad_truncation)
@@ -169,7 +170,7 @@ def dense_pixel_costs(left, left_grad, y, x, rev, min_disp, first_column, trunca
 
 
 @njit(cache=True, parallel=True)
-def _full_dsi(left, right, left_grad, right_grad, min_disp, num_disp, truncation, grad_truncation, grad_weight,
+def _full_dsi(left, right, left_gray, right_gray, min_disp, num_disp, truncation, grad_truncation, grad_weight,
               out):
     h, w, channels = left.shape
     use_grad = grad_weight > 0
@@ -177,34 +178,31 @@ def _full_dsi(left, right, left_grad, right_grad, min_disp, num_disp, truncation
     span = (w - 1 - min_disp) - first_column + 1
     for y in prange(h):
         rev = np.empty((channels + 1, span), dtype=np.float32)
-        reversed_right_row(right, right_grad, y, first_column, use_grad, rev)
+        reversed_right_row(right, right_gray, y, first_column, use_grad, rev)
         for x in range(w):
-            dense_pixel_costs(left, left_grad, y, x, rev, min_disp, first_column, truncation, grad_truncation,
+            dense_pixel_costs(left, left_gray, y, x, rev, min_disp, first_column, truncation, grad_truncation,
                               grad_weight, out[y, x])
     return out
 
 
 def horizontal_gradient(gray: np.ndarray) -> np.ndarray:
     """Central-difference x-gradient of a float32 (H, W) image, in intensity units per pixel:
-    ``0.5 * (I(x + 1) - I(x - 1))`` in float32, 0 in the first and last column."""
-    return _horizontal_gradient(np.ascontiguousarray(gray, np.float32))
+    ``0.5 * (I(x + 1) - I(x - 1))`` in float32, 0 in the first and last column (the cost
+    kernels take it pixel by pixel with :func:`gradient_at`)."""
+    g = np.zeros_like(gray)
+    g[:, 1:-1] = 0.5 * (gray[:, 2:] - gray[:, :-2])
+    return g
 
 
-@njit(cache=True, parallel=True)
-def _horizontal_gradient(gray):
-    # On both threads (numpy's slices ran on one while numba's worker spun beside it).
-    h, w = gray.shape
-    out = np.empty((h, w), dtype=np.float32)
-    half = np.float32(0.5)
-    rows = h if w > 0 else 0
-    for y in prange(rows):
-        row = gray[y]
-        target = out[y]
-        target[0] = 0.0
-        target[w - 1] = 0.0
-        for x in range(1, w - 1):
-            target[x] = half * (row[x + 1] - row[x - 1])
-    return out
+@njit(cache=True, inline="always")
+def gradient_at(gray, y, x):
+    """:func:`horizontal_gradient` of ``gray`` at (y, x), the same float32 value: computed
+    where the cost kernels need it instead of as an image of its own (one pass and, for a
+    single-shot decode, one compiled kernel fewer)."""
+    w = gray.shape[1]
+    if x <= 0 or x >= w - 1:
+        return np.float32(0.0)
+    return np.float32(0.5) * (gray[y, x + 1] - gray[y, x - 1])
 
 
 def full_dsi(left: np.ndarray, right: np.ndarray, *, min_disp: int, num_disp: int,
@@ -237,8 +235,8 @@ def full_dsi(left: np.ndarray, right: np.ndarray, *, min_disp: int, num_disp: in
     h, w, _ = left.shape
     out = np.empty((h, w, num_disp), dtype=np.float32)
     if grad_weight > 0:
-        lg = horizontal_gradient(to_gray(left))
-        rg = horizontal_gradient(to_gray(right))
+        lg = to_gray(left)  # the gradients are taken from the gray images inside the kernel
+        rg = to_gray(right)
     else:
         lg = rg = np.zeros((1, 1), np.float32)
     return _full_dsi(np.ascontiguousarray(left, np.float32), np.ascontiguousarray(right, np.float32),
@@ -269,31 +267,7 @@ def noise_level(image_f32: np.ndarray, *, block: int = 8, percentile: float = 20
     if h < 3 * block or w < 3 * block:
         return 0.0
     kernel = np.array([[1, -2, 1], [-2, 4, -2], [1, -2, 1]], np.float32)
-    response = cv2.filter2D(gray, -1, kernel, borderType=cv2.BORDER_REFLECT)
-    if block == 8:
-        tiles = _abs_tile_means_8(response)
-    else:
-        tiles = np.abs(response[: h // block * block, : w // block * block])
-        tiles = tiles.reshape(h // block, block, w // block, block).mean(axis=(1, 3))
+    response = np.abs(cv2.filter2D(gray, -1, kernel, borderType=cv2.BORDER_REFLECT))
+    tiles = response[: h // block * block, : w // block * block]
+    tiles = tiles.reshape(h // block, block, w // block, block).mean(axis=(1, 3))
     return float(np.sqrt(np.pi / 2.0) / 6.0 * np.percentile(tiles, percentile))
-
-
-@njit(cache=True, parallel=True)
-def _abs_tile_means_8(response):
-    """Mean of ``|response|`` over each whole 8 x 8 tile, float32: numpy's
-    ``mean(axis=(1, 3))`` of the tiled view with numpy's order of additions for two or
-    more tiles a side (each tile row's 8 values summed pairwise, the rows added in turn,
-    divided by 64; :func:`noise_level` needs three), on both threads instead of numpy's
-    pass on one (0.6 ms on Teddy)."""
-    rows, cols = response.shape[0] // 8, response.shape[1] // 8
-    out = np.empty((rows, cols), dtype=np.float32)
-    count = np.float32(64.0)
-    for tile_row in prange(rows):
-        for tile_col in range(cols):
-            total = np.float32(0.0)
-            for r in range(8):
-                v = response[tile_row * 8 + r, tile_col * 8:tile_col * 8 + 8]
-                total += (((abs(v[0]) + abs(v[1])) + (abs(v[2]) + abs(v[3])))
-                          + ((abs(v[4]) + abs(v[5])) + (abs(v[6]) + abs(v[7]))))
-            out[tile_row, tile_col] = total / count
-    return out

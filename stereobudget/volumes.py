@@ -28,7 +28,7 @@ from numba import njit, prange
 from ._prefetch import prefetch_row
 from ._simd import LANES, skewed_block_copy
 from .bilateral import SliceGrids, slice_pixel
-from .cost import dense_pixel_costs, horizontal_gradient, reversed_right_row, to_gray
+from .cost import dense_pixel_costs, reversed_right_row, to_gray
 from .scratch import empty_volume
 
 #: Image rows per parallel work item (each item allocates its own W x D row buffer).
@@ -89,7 +89,7 @@ def _gather_right_rows(buffer, y, min_disp, right_rows, right_flat, right_row_of
 
 
 @njit(cache=True, parallel=True)
-def _pair_rows(left, right, left_grad, right_grad, min_disp, truncation, grad_truncation, grad_weight,
+def _pair_rows(left, right, left_gray, right_gray, min_disp, truncation, grad_truncation, grad_weight,
                grids, guide, use_grids, grid_weight, dense_weight,
                left_row_of_pixel, right_row_of_pixel, left_rows, right_rows):
     """Left costs of each image row into ``left_rows``, the right view's into ``right_rows``.
@@ -116,7 +116,7 @@ def _pair_rows(left, right, left_grad, right_grad, min_disp, truncation, grad_tr
         corner_weight = np.empty(8, dtype=np.float32)
         starts = np.empty(LANES, dtype=np.int64)
         for y in range(item * _ROWS_PER_ITEM, min((item + 1) * _ROWS_PER_ITEM, h)):
-            reversed_right_row(right, right_grad, y, first_column, use_grad, rev)
+            reversed_right_row(right, right_gray, y, first_column, use_grad, rev)
             for x in range(w):
                 if x + _PREFETCH_AHEAD < w:
                     prefetch_row(left_flat, left_row_of_pixel[y * w + x + _PREFETCH_AHEAD], num_disp)
@@ -124,14 +124,14 @@ def _pair_rows(left, right, left_grad, right_grad, min_disp, truncation, grad_tr
                 target = left_rows[left_row_of_pixel[y * w + x]]
                 if use_grids:
                     slice_pixel(grids, guide, y, x, o, den_base, den, corner_index, band_index, corner_weight)
-                    dense_pixel_costs(left, left_grad, y, x, rev, min_disp, first_column, truncation,
+                    dense_pixel_costs(left, left_gray, y, x, rev, min_disp, first_column, truncation,
                                       grad_truncation, grad_weight, dense)
                     for i in range(num_disp):  # the mix stored to the buffer and the volume in one loop
                         mixed = grid_weight * o[i] + dense_weight * dense[i]
                         o[i] = mixed
                         target[i] = mixed
                 else:
-                    dense_pixel_costs(left, left_grad, y, x, rev, min_disp, first_column, truncation,
+                    dense_pixel_costs(left, left_gray, y, x, rev, min_disp, first_column, truncation,
                                       grad_truncation, grad_weight, o)
                     for i in range(num_disp):
                         target[i] = o[i]
@@ -188,10 +188,10 @@ def pair_cost_rows(left: np.ndarray, right: np.ndarray, *, min_disp: int, num_di
     left = np.ascontiguousarray(left, np.float32)
     right = np.ascontiguousarray(right, np.float32)
     if grad_weight > 0:
-        left_grad = horizontal_gradient(to_gray(left))
-        right_grad = horizontal_gradient(to_gray(right))
+        # Gray images: the kernel takes their x-gradients where it needs them (cost.gradient_at).
+        left_gray, right_gray = to_gray(left), to_gray(right)
     else:
-        left_grad = right_grad = np.zeros((1, 1), np.float32)
+        left_gray = right_gray = np.zeros((1, 1), np.float32)
     use_grids = grids is not None
     if use_grids and (guide is None or grids.values.shape[1] != num_disp):
         raise ValueError("grids need a guide and num_disp layers")
@@ -199,7 +199,7 @@ def pair_cost_rows(left: np.ndarray, right: np.ndarray, *, min_disp: int, num_di
     right_rows = (empty_volume((h * w, int(num_disp))) if right_layout is not None
                   else np.empty((0, int(num_disp)), np.float32))
     empty_rows = np.zeros(0, np.int64)
-    _pair_rows(left, right, left_grad, right_grad, int(min_disp), np.float32(truncation),
+    _pair_rows(left, right, left_gray, right_gray, int(min_disp), np.float32(truncation),
                np.float32(grad_truncation), np.float32(grad_weight),
                grids if use_grids else _no_grids(int(num_disp)),
                np.ascontiguousarray(guide, np.float32) if use_grids else np.zeros((1, 1), np.float32),

@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from stereobudget._parallel import fill_zero, take
-from stereobudget.cost import horizontal_gradient, to_gray
+from stereobudget.cost import to_gray
 from stereobudget.refine import _stable_levels
 from stereobudget.tree import _uint16_keys
 
@@ -49,26 +49,3 @@ def test_stable_levels_gather_rows_and_mark_unstable_pixels_nan():
     order = rng.permutation(500).astype(np.int64)
     expected = np.where(stable, disp, np.float32(np.nan))[order]
     np.testing.assert_array_equal(_stable_levels(disp, stable, order), expected)
-
-
-@pytest.mark.parametrize("shape", [(0, 4), (3, 0), (1, 1), (4, 2), (5, 3), (375, 450)])
-def test_horizontal_gradient_is_numpys_central_difference(shape):
-    gray = np.random.default_rng(5).uniform(0, 255, shape).astype(np.float32)
-    expected = np.zeros_like(gray)
-    expected[:, 1:-1] = 0.5 * (gray[:, 2:] - gray[:, :-2])
-    got = horizontal_gradient(gray)
-    assert got.dtype == np.float32
-    np.testing.assert_array_equal(got, expected)
-
-
-@pytest.mark.parametrize("shape", [(16, 16), (24, 31), (375, 450), (100, 17)])
-def test_tile_means_are_numpys_mean_over_tiles(shape):
-    from stereobudget.cost import _abs_tile_means_8
-    rng = np.random.default_rng(shape[0])
-    for scale in (0.5, 40.0, 3000.0):
-        response = rng.normal(0, scale, shape).astype(np.float32)
-        h, w = shape[0] // 8 * 8, shape[1] // 8 * 8
-        expected = np.abs(response[:h, :w]).reshape(h // 8, 8, w // 8, 8).mean(axis=(1, 3))
-        got = _abs_tile_means_8(response)
-        assert got.dtype == np.float32
-        np.testing.assert_array_equal(got, expected)

@@ -154,3 +154,23 @@ def test_kept_freed_memory_spares_repeated_blocks_their_page_faults():
     plain_faults, untouched = run(False)
     assert tuned and not untouched
     assert kept_faults * 4 < plain_faults, (kept_faults, plain_faults)
+
+
+@pytest.mark.parametrize("shape", [(1, 1), (4, 2), (5, 3), (23, 57)])
+def test_gradient_taken_in_the_kernels_is_the_gradient_image(shape):
+    # The cost kernels take I1's and I2's x-gradients pixel by pixel (cost.gradient_at);
+    # they must be horizontal_gradient's values, bit for bit.
+    from numba import njit
+
+    from stereobudget.cost import gradient_at, horizontal_gradient
+
+    @njit
+    def every_pixel(gray):
+        out = np.empty(gray.shape, np.float32)
+        for y in range(gray.shape[0]):
+            for x in range(gray.shape[1]):
+                out[y, x] = gradient_at(gray, y, x)
+        return out
+
+    gray = np.random.default_rng(5).uniform(0, 255, shape).astype(np.float32)
+    np.testing.assert_array_equal(every_pixel(gray), horizontal_gradient(gray))
