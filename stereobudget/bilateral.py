@@ -157,6 +157,8 @@ def _blur_grid_rows(src, dst, spatial, kernel_s, kernel_r, blocks):
     rs = kernel_s.shape[0] // 2
     rr = kernel_r.shape[0] // 2
     run = gz * k
+    # Along z, the cells with every tap inside the grid form one run; the border cells go apart.
+    inner_lo, inner_hi = min(rr, gz), max(gz - rr, min(rr, gz))
     blocks = max(1, min(blocks, gy))
     for block in prange(blocks):
         slab = np.empty(gx * run, dtype=np.float32)
@@ -173,9 +175,7 @@ def _blur_grid_rows(src, dst, spatial, kernel_s, kernel_r, blocks):
                     _add_tap(column, slab[(x + t) * run:(x + t + 1) * run], kernel_s[t + rs], started)
                     started = True
                 out = target[x * run:(x + 1) * run]
-                # Along z: cells with every tap inside the grid as one run, the border cells apart.
-                inner_lo, inner_hi = min(rr, gz), max(gz - rr, min(rr, gz))
-                if inner_hi > inner_lo:
+                if inner_hi > inner_lo:  # along z
                     inner = out[inner_lo * k:inner_hi * k]
                     for t in range(-rr, rr + 1):
                         _add_tap(inner, column[(inner_lo + t) * k:(inner_hi + t) * k], kernel_r[t + rr], t > -rr)
@@ -571,7 +571,8 @@ def _splat_lattice_rows(r_lo, r_hi, cell_lo, cell_hi, sample_rows, offset_x, str
     ``x - min_disp - i`` is on the lattice: one layer in ``stride``.  Its hat weights are
     the same in all of them, so they are computed once per pixel, and the 8 cells it adds
     into stay in cache.  Base channel ``channel_of_residue[x % stride]`` holds the mask of
-    the lattice columns congruent to x (-1: none).
+    the lattice columns congruent to x (-1: none).  Sample ``k = r * n_cols + j`` is at
+    column ``offset_x + j * stride``; ``min_disp >= 0``.
     """
     gy_n, gx_n, gz_n, num_disp = grid_val.shape
     w = left.shape[1]
@@ -642,9 +643,10 @@ def _splat_lattice_rows(r_lo, r_hi, cell_lo, cell_hi, sample_rows, offset_x, str
 @njit(cache=True, parallel=True)
 def _splat_lattice(sample_rows, offset_x, stride, n_cols, right_values, right_steps, left, guide, min_disp,
                    truncation, step_spacing, step_weight, step_truncation, inv_cs, inv_cr,
-                   grid_val, band_w, base_w, channel_of_residue, part_rows):
+                   grid_val, band_w, base_w, channel_of_residue, part_rows, shared_cells):
     """All sample rows of a full lattice into the value, band and base-weight grids, the
-    rows cut into parts ``[part_rows[p], part_rows[p + 1])``, one per thread.
+    rows cut into parts ``[part_rows[p], part_rows[p + 1])``, one per thread; part ``p``
+    shares the rows of cells up to ``shared_cells[p]`` with the part above (-1: none).
 
     Every sum of a cell must receive its terms in the order of a single row-major pass,
     so that the result is that of the per-sample kernel bit for bit.  A part writes
@@ -656,38 +658,39 @@ def _splat_lattice(sample_rows, offset_x, stride, n_cols, right_values, right_st
     gy_n = grid_val.shape[0]
     parts = part_rows.shape[0] - 1
     for p in prange(parts):
-        # Cells up to the last one the part above reaches wait for the second loop.
-        shared_hi = -1 if p == 0 else _hat(sample_rows[part_rows[p] - 1] * inv_cs, gy_n)[0] + 1
-        _splat_lattice_rows(part_rows[p], part_rows[p + 1], shared_hi + 1, gy_n, sample_rows, offset_x, stride,
-                            n_cols, right_values, right_steps, left, guide, min_disp, truncation, step_spacing,
-                            step_weight, step_truncation, inv_cs, inv_cr, grid_val, band_w, base_w,
+        # Cells up to the last one the part above reaches (shared_cells[p]) wait for the second loop.
+        _splat_lattice_rows(part_rows[p], part_rows[p + 1], shared_cells[p] + 1, gy_n, sample_rows, offset_x,
+                            stride, n_cols, right_values, right_steps, left, guide, min_disp, truncation,
+                            step_spacing, step_weight, step_truncation, inv_cs, inv_cr, grid_val, band_w, base_w,
                             channel_of_residue)
     for p in prange(parts):
-        if p > 0:
-            shared_hi = _hat(sample_rows[part_rows[p] - 1] * inv_cs, gy_n)[0] + 1
-            _splat_lattice_rows(part_rows[p], part_rows[p + 1], 0, shared_hi, sample_rows, offset_x, stride,
+        if shared_cells[p] >= 0:
+            _splat_lattice_rows(part_rows[p], part_rows[p + 1], 0, shared_cells[p], sample_rows, offset_x, stride,
                                 n_cols, right_values, right_steps, left, guide, min_disp, truncation, step_spacing,
                                 step_weight, step_truncation, inv_cs, inv_cr, grid_val, band_w, base_w,
                                 channel_of_residue)
 
 
-def _lattice_parts(sample_rows: np.ndarray, inv_cs: float, gy: int, parts: int) -> np.ndarray:
-    """Row bounds of ``parts`` contiguous parts of the sample rows for :func:`_splat_lattice`,
-    fewer when parts would be too short for only neighbouring parts to share grid cells."""
+def _lattice_parts(sample_rows: np.ndarray, inv_cs: float, gy: int, parts: int) -> tuple:
+    """Row bounds of ``parts`` contiguous parts of the sample rows for :func:`_splat_lattice`
+    (fewer when parts would be too short for only neighbouring parts to share grid cells),
+    and the last row of cells each part shares with the part above (-1 for the first).
+
+    A sample row at y splats into the cell rows ``c(y)`` and ``c(y) + 1``, ``c`` the
+    clamped floor of :func:`_hat`.
+    """
     count = len(sample_rows)
-
-    def cell(r):  # the hat's first cell, as _hat takes it
-        return min(max(int(np.floor(sample_rows[r] * inv_cs)), 0), gy - 2)
-
+    first_cell = np.clip(np.floor(sample_rows * inv_cs), 0, gy - 2).astype(np.int64)
     while parts > 1:
         bounds = np.array([p * count // parts for p in range(parts + 1)], np.int64)
         # The part below starts sharing at most the cells reached by this part's last row,
         # and must not reach the cells of the part above this one.
         if all(bounds[p + 1] - bounds[p] >= 2 for p in range(parts)) and all(
-                cell(bounds[p + 1]) > cell(bounds[p] - 1) + 1 for p in range(1, parts - 1)):
-            return bounds
+                first_cell[bounds[p + 1]] > first_cell[bounds[p] - 1] + 1 for p in range(1, parts - 1)):
+            shared = np.concatenate([[-1], first_cell[bounds[1:-1] - 1] + 1]).astype(np.int64)
+            return bounds, shared
         parts -= 1
-    return np.array([0, count], np.int64)
+    return np.array([0, count], np.int64), np.array([-1], np.int64)
 
 
 def _lattice_stride(rows: np.ndarray, cols: np.ndarray, width: int) -> int:
@@ -746,7 +749,7 @@ def _lattice_sparse_dsi_grids(left, guide, rows, cols, right_values, right_steps
     _splat_lattice(sample_rows, offset_x, int(stride), n_cols, np.ascontiguousarray(right_values, np.float32),
                    np.ascontiguousarray(right_steps, np.float32), left, guide, int(min_disp), np.float32(truncation),
                    int(step_spacing), np.float32(step_weight), np.float32(step_truncation), inv_cs, inv_cr, grid_val,
-                   band_w, base_w, channel_of_residue, _lattice_parts(sample_rows, inv_cs, gy, get_num_threads()))
+                   band_w, base_w, channel_of_residue, *_lattice_parts(sample_rows, inv_cs, gy, get_num_threads()))
     return _slice_grids(_blur_grid(grid_val, geom), _blur_grid(base_w, geom), _blur_grid(band_w, geom), geom,
                         density=len(rows) / float(h * w), missing_value=truncation,
                         first_band_layer=first_band_layer)

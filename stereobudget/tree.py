@@ -615,7 +615,8 @@ def _rooted_tree(image, key_count, similarity_of_key, out, split):
     bits = _kruskal_tree_bits(sorted_edges, height, width)
     reached = _depth_first(bits, keys, height, width, 0, similarity_of_key, out)
     if split.shape[0] >= 2 and reached == height * width and reached >= 2:
-        split[0], split[1] = _balanced_subtree(split[:0], out[4])
+        rows_in_order = out[0][:0]  # empty: the layout's rows 0 .. N-1 are the walk order
+        split[0], split[1] = _balanced_subtree(rows_in_order, out[4])
     return reached
 
 

@@ -122,9 +122,9 @@ def test_lattice_splat_in_row_parts_is_bit_identical(scene, monkeypatch, parts):
     lattice_parts = bilateral._lattice_parts
 
     def parts_of(sample_rows, inv_cs, gy, _threads):
-        bounds = lattice_parts(sample_rows, inv_cs, gy, parts)
+        bounds, shared = lattice_parts(sample_rows, inv_cs, gy, parts)
         chosen.append(len(bounds) - 1)
-        return bounds
+        return bounds, shared
 
     monkeypatch.setattr(bilateral, "_lattice_parts", parts_of)
     split = bilateral.filled_sparse_dsi(left, guide, rows, cols, values, **kwargs)
@@ -136,10 +136,13 @@ def test_lattice_splat_in_row_parts_is_bit_identical(scene, monkeypatch, parts):
 
 def test_lattice_parts_keep_shared_cells_between_neighbours():
     sample_rows = np.arange(2, 72, 5, dtype=np.int64)         # 14 rows, cells of 10 px
+    cells = np.minimum(np.floor(sample_rows * 0.1).astype(int), 7)
     for parts in (2, 3, 4, 8):
-        bounds = bilateral._lattice_parts(sample_rows, 0.1, 9, parts)
+        bounds, shared = bilateral._lattice_parts(sample_rows, 0.1, 9, parts)
         assert bounds[0] == 0 and bounds[-1] == len(sample_rows) and np.all(np.diff(bounds) >= 2)
-        cells = np.minimum(np.floor(sample_rows * 0.1).astype(int), 7)
         for p in range(1, len(bounds) - 2):                    # a part never reaches two parts up
             assert cells[bounds[p + 1]] > cells[bounds[p] - 1] + 1
-    assert len(bilateral._lattice_parts(sample_rows[:3], 0.1, 9, 2)) == 2   # too short to split: one part
+        # Each part shares the cells the part above reaches: up to its last row's cell + 1.
+        assert shared[0] == -1 and list(shared[1:]) == [cells[b - 1] + 1 for b in bounds[1:-1]]
+    bounds, shared = bilateral._lattice_parts(sample_rows[:3], 0.1, 9, 2)
+    assert list(bounds) == [0, 3] and list(shared) == [-1]   # too short to split: one part
