@@ -205,6 +205,15 @@ def gradient_at(gray, y, x):
     return np.float32(0.5) * (gray[y, x + 1] - gray[y, x - 1])
 
 
+def gradient_sources(left: np.ndarray, right: np.ndarray, grad_weight: float) -> tuple:
+    """The gray images the cost kernels take the x-gradients from (:func:`gradient_at`), or
+    (1, 1) placeholders when the gradient term is off (``grad_weight <= 0``)."""
+    if grad_weight > 0:
+        return to_gray(left), to_gray(right)
+    placeholder = np.zeros((1, 1), np.float32)
+    return placeholder, placeholder
+
+
 def full_dsi(left: np.ndarray, right: np.ndarray, *, min_disp: int, num_disp: int,
              truncation: float = DEFAULT_TRUNCATION, grad_weight: float = 0.0,
              grad_truncation: float = 2.0) -> np.ndarray:
@@ -234,11 +243,7 @@ def full_dsi(left: np.ndarray, right: np.ndarray, *, min_disp: int, num_disp: in
     """
     h, w, _ = left.shape
     out = np.empty((h, w, num_disp), dtype=np.float32)
-    if grad_weight > 0:
-        lg = to_gray(left)  # the gradients are taken from the gray images inside the kernel
-        rg = to_gray(right)
-    else:
-        lg = rg = np.zeros((1, 1), np.float32)
+    lg, rg = gradient_sources(left, right, grad_weight)
     return _full_dsi(np.ascontiguousarray(left, np.float32), np.ascontiguousarray(right, np.float32),
                      lg, rg, int(min_disp), int(num_disp), np.float32(truncation),
                      np.float32(grad_truncation), np.float32(grad_weight), out)

@@ -526,10 +526,10 @@ def _aggregate_two_threads(cost, levels, order, parent, weight, out, winners, mi
     """Both passes with the tree cut into a subtree A and the rest B, one thread each.
 
     In pre-order the subtree of the node at position ``a0`` (``subtree_size`` nodes,
-    :func:`_balanced_subtree`) is the contiguous range ``[a0, a1)``.  Upward, A and B are summed independently, then A's total is carried up
-    the path to the root.  Downward, the final aggregate of A's parent is computed along
-    that path first, so A and B can again run independently.  Threads never write the
-    same row.
+    :func:`_balanced_subtree`) is the contiguous range ``[a0, a1)``.  Upward, A and B are
+    summed independently, then A's total is carried up the path to the root.  Downward,
+    the final aggregate of A's parent is computed along that path first, so A and B can
+    again run independently.  Threads never write the same row.
     """
     node_count, disparities = out.shape
     a1 = a0 + subtree_size

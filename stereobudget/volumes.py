@@ -28,7 +28,7 @@ from numba import njit, prange
 from ._prefetch import prefetch_row
 from ._simd import LANES, skewed_block_copy
 from .bilateral import SliceGrids, slice_pixel
-from .cost import dense_pixel_costs, reversed_right_row, to_gray
+from .cost import dense_pixel_costs, gradient_sources, reversed_right_row
 from .scratch import empty_volume
 
 #: Image rows per parallel work item (each item allocates its own W x D row buffer).
@@ -187,11 +187,7 @@ def pair_cost_rows(left: np.ndarray, right: np.ndarray, *, min_disp: int, num_di
     h, w, _ = left.shape
     left = np.ascontiguousarray(left, np.float32)
     right = np.ascontiguousarray(right, np.float32)
-    if grad_weight > 0:
-        # Gray images: the kernel takes their x-gradients where it needs them (cost.gradient_at).
-        left_gray, right_gray = to_gray(left), to_gray(right)
-    else:
-        left_gray = right_gray = np.zeros((1, 1), np.float32)
+    left_gray, right_gray = gradient_sources(left, right, grad_weight)
     use_grids = grids is not None
     if use_grids and (guide is None or grids.values.shape[1] != num_disp):
         raise ValueError("grids need a guide and num_disp layers")
