@@ -171,20 +171,28 @@ def _native_stderr_captured():
         return
     try:
         with tempfile.TemporaryFile() as sink:
-            os.dup2(sink.fileno(), 2)
             try:
+                # The swap is inside the try: an interrupt raised just after it still
+                # restores fd 2.
+                os.dup2(sink.fileno(), 2)
                 yield lines
+                _flush_quietly(sys.stderr)      # Python-level text written meanwhile: to the sink
             finally:
-                try:
-                    sys.stderr.flush()
-                except (OSError, ValueError):
-                    pass
+                # The first call here: an interrupt raised in any call before it would
+                # leave fd 2 on the sink, and the command's last message would go there.
                 os.dup2(saved, 2)
-                sink.seek(0)
-                text = sink.read(64 * 1024).decode("utf-8", "replace")
-                lines.extend(line.strip() for line in text.splitlines() if line.strip())
+            sink.seek(0)
+            text = sink.read(64 * 1024).decode("utf-8", "replace")
+            lines.extend(line.strip() for line in text.splitlines() if line.strip())
     finally:
         os.close(saved)
+
+
+def _flush_quietly(stream) -> None:
+    try:
+        stream.flush()
+    except (OSError, ValueError):
+        pass
 
 
 def _decode_with_opencv(data: bytes):

@@ -5,6 +5,7 @@ from __future__ import annotations
 import io
 import json
 import logging
+import os
 import struct
 import subprocess
 import tempfile
@@ -246,3 +247,44 @@ def test_write_image_refuses_overwrite_and_unknown_extensions(tmp_path):
     with pytest.raises(OutputError, match="unsupported image extension '.jpg'"):
         write_image(tmp_path / "a.jpg", rgb_image())
     assert sorted(p.name for p in tmp_path.iterdir()) == ["a.png"]
+
+
+# --- the decoders' stderr capture under an interrupt -------------------------------------
+
+def _fd2_identity():
+    st = os.fstat(2)
+    return st.st_dev, st.st_ino
+
+
+@pytest.mark.parametrize("where", ["after the swap-in", "in the decoder", "in the final flush"])
+def test_an_interrupt_while_decoder_stderr_is_captured_leaves_fd2_restored(where, monkeypatch):
+    # While an image is decoded, fd 2 points at a temporary file.  Wherever a Ctrl-C /
+    # SIGTERM lands meanwhile, fd 2 must be stderr again when the KeyboardInterrupt leaves
+    # read_image: the command's "interrupted" line is written after it (a CI run lost it).
+    from stereobudget import imageio as sbio
+
+    real_dup2 = os.dup2
+    calls = []
+
+    def dup2_then_interrupt(fd, fd2, *args, **kwargs):
+        real_dup2(fd, fd2, *args, **kwargs)
+        calls.append(fd2)
+        if len(calls) == 1:         # the swap-in: the signal arrives just as it returns
+            raise KeyboardInterrupt
+
+    def interrupt(*args, **kwargs):
+        raise KeyboardInterrupt
+
+    if where == "after the swap-in":
+        monkeypatch.setattr(sbio.os, "dup2", dup2_then_interrupt)
+    elif where == "in the decoder":
+        monkeypatch.setattr(sbio, "_decode_with_opencv", interrupt)
+    else:
+        monkeypatch.setattr(sbio, "_flush_quietly", interrupt)
+    before = _fd2_identity()
+    with pytest.raises(KeyboardInterrupt):
+        read_image(png_bytes(rgb_image()))
+    monkeypatch.undo()
+    assert _fd2_identity() == before
+    if where == "after the swap-in":
+        assert calls == [2, 2]      # swapped in, and back
