@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import contextlib
 import os
+import signal
 import stat
 import sys
 import tempfile
@@ -88,18 +89,16 @@ def atomic_write(path, *, overwrite: bool = False, fsync: bool = True) -> Iterat
         The directory does not exist or is not writable, or ``path`` exists.
     """
     target = Path(path)
-    directory = target.parent
     if not overwrite and target.exists():
         raise OutputError("output exists (pass --overwrite to replace it)", path=str(path))
+    tmp = None
     try:
-        fd, tmp_name = tempfile.mkstemp(prefix=f".{target.name}.", suffix=".tmp", dir=directory)
-    except FileNotFoundError:
-        raise OutputError(f"directory {str(directory)!r} does not exist", path=str(path)) from None
-    except OSError as exc:
-        raise OutputError(f"cannot create a file in {str(directory)!r}: {exc.strerror}",
-                          path=str(path)) from None
-    tmp = Path(tmp_name)
-    try:
+        with interrupts_deferred():
+            # The file and its name come into being together: an interrupt lands before
+            # both (nothing to remove) or after both (the except below removes the file),
+            # never in between, inside mkstemp or before this try.
+            fd, tmp_name = _make_temporary(target, path)
+            tmp = Path(tmp_name)
         # mkstemp creates 0600; give the result the permissions a plain open() would.
         os.fchmod(fd, 0o666 & ~_current_umask())
         with os.fdopen(fd, "wb") as handle:
@@ -109,9 +108,50 @@ def atomic_write(path, *, overwrite: bool = False, fsync: bool = True) -> Iterat
                 os.fsync(handle.fileno())
         _move_into_place(tmp, target, overwrite=overwrite)
     except BaseException:
-        with contextlib.suppress(FileNotFoundError):
-            tmp.unlink()
+        if tmp is not None:
+            with contextlib.suppress(FileNotFoundError):
+                tmp.unlink()
         raise
+
+
+def _make_temporary(target: Path, path) -> tuple:
+    directory = target.parent
+    try:
+        return tempfile.mkstemp(prefix=f".{target.name}.", suffix=".tmp", dir=directory)
+    except FileNotFoundError:
+        raise OutputError(f"directory {str(directory)!r} does not exist", path=str(path)) from None
+    except OSError as exc:
+        raise OutputError(f"cannot create a file in {str(directory)!r}: {exc.strerror}",
+                          path=str(path)) from None
+
+
+@contextlib.contextmanager
+def interrupts_deferred() -> Iterator[None]:
+    """Hold SIGINT and SIGTERM back meanwhile; they take effect as soon as it ends.
+
+    For the few statements that must not be split by a ``KeyboardInterrupt`` (creating
+    a file and recording its name).  The signals' handlers are swapped for one that
+    notes them; afterwards the old handlers are restored and a noted signal is raised
+    again, so it does whatever it would have done (raise ``KeyboardInterrupt``, end the
+    process, nothing).  Masking the signals would not do: a signal sent to the process
+    goes to another thread that does not mask it, and Python still runs its handler in
+    the main thread.  Only the main thread runs handlers, so elsewhere this does nothing.
+    """
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    noted: list = []
+    previous = {}
+    try:
+        for signum in (signal.SIGINT, signal.SIGTERM):
+            if signal.getsignal(signum) is not None:    # None: a handler set outside Python
+                previous[signum] = signal.signal(signum, lambda number, frame: noted.append(number))
+        yield
+    finally:
+        for signum, handler in previous.items():
+            signal.signal(signum, handler)
+        for signum in dict.fromkeys(noted):
+            signal.raise_signal(signum)
 
 
 def _move_into_place(tmp: Path, target: Path, *, overwrite: bool) -> None:

@@ -4,11 +4,13 @@ from __future__ import annotations
 
 import io
 import os
+import signal
 import sys
 
 import pytest
 
-from stereobudget.atomic import (atomic_write, check_output_path, read_input_bytes,
+from stereobudget import atomic
+from stereobudget.atomic import (atomic_write, check_output_path, interrupts_deferred, read_input_bytes,
                                  write_output_bytes)
 from stereobudget.errors import ImageReadError, OutputError
 
@@ -121,3 +123,42 @@ def test_swallowed_interrupt_is_redelivered_not_printed(tmp_path):
                           cwd=tempfile.gettempdir())
     assert proc.stdout.strip() == "interrupted"
     assert "Exception ignored" not in proc.stderr and "Traceback" not in proc.stderr, proc.stderr
+
+
+def test_an_interrupt_as_the_temporary_file_is_created_leaves_no_file(tmp_path, monkeypatch):
+    # A Ctrl-C that arrives while mkstemp runs (or just as it returns) must not leave the
+    # new file behind under a name nobody recorded.
+    real_mkstemp = atomic.tempfile.mkstemp
+
+    def mkstemp_then_signal(*args, **kwargs):
+        created = real_mkstemp(*args, **kwargs)
+        signal.raise_signal(signal.SIGINT)
+        return created
+
+    monkeypatch.setattr(atomic.tempfile, "mkstemp", mkstemp_then_signal)
+    with pytest.raises(KeyboardInterrupt):
+        with atomic_write(tmp_path / "out.bin") as handle:
+            handle.write(b"never")
+    assert os.listdir(tmp_path) == []
+
+
+def test_interrupts_deferred_delivers_sigint_and_sigterm_after_the_block():
+    def sigterm_as_interrupt(signum, frame):       # what the sb-* commands install
+        raise KeyboardInterrupt
+
+    before_int = signal.getsignal(signal.SIGINT)
+    before_term = signal.signal(signal.SIGTERM, sigterm_as_interrupt)
+    try:
+        for signum in (signal.SIGINT, signal.SIGTERM):
+            reached_the_end = False
+            with pytest.raises(KeyboardInterrupt):
+                with interrupts_deferred():
+                    signal.raise_signal(signum)
+                    reached_the_end = True
+            assert reached_the_end
+            assert signal.getsignal(signal.SIGINT) is before_int
+            assert signal.getsignal(signal.SIGTERM) is sigterm_as_interrupt
+        with interrupts_deferred():                 # nothing noted: nothing raised
+            pass
+    finally:
+        signal.signal(signal.SIGTERM, before_term)
