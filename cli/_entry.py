@@ -12,6 +12,7 @@ from __future__ import annotations
 import atexit
 import importlib
 import os
+import signal
 import sys
 import threading
 
@@ -21,16 +22,41 @@ from stereobudget.errors import EXIT_INTERRUPTED   # a module of plain classes: 
 def _run(command: str):
     try:
         main = importlib.import_module(f"stereobudget.cli.{command}").main
+        try:
+            code = main()
+        except SystemExit as exc:
+            code = exc.code
+        _ignore_interrupts(command)     # the outputs are complete or absent: nothing to stop
     except KeyboardInterrupt:
+        # While the command was imported, or just after it returned (while it runs, its
+        # own handler reports an interrupt): the same one line and status.
+        _ignore_interrupts(command)
         sys.stderr.write(f"sb-{command}: interrupted\n")
-        sys.exit(EXIT_INTERRUPTED)
-    try:
-        code = main()
-    except SystemExit as exc:
-        code = exc.code
-    if os.path.basename(sys.argv[0]) != f"sb-{command}" or threading.active_count() > 1:
+        code = EXIT_INTERRUPTED
+    if not _is_console_script(command) or threading.active_count() > 1:
         sys.exit(code)      # embedded, or threads to join: the interpreter's normal exit
     _exit_without_teardown(code)
+
+
+def _is_console_script(command: str) -> bool:
+    return os.path.basename(sys.argv[0]) == f"sb-{command}"
+
+
+def _ignore_interrupts(command: str) -> None:
+    """In the console script, let a later SIGINT / SIGTERM do nothing: it is only exiting.
+
+    Called from Python (embedded, tests), the host's handlers are left alone.  A no-op
+    handler rather than ``SIG_IGN``: a signal already noted by the interpreter would
+    otherwise be reported as "ignored due to race condition" on stderr.
+    """
+    if not _is_console_script(command) or threading.current_thread() is not threading.main_thread():
+        return
+    for signum in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(signum, _do_nothing)
+
+
+def _do_nothing(signum, frame) -> None:
+    pass
 
 
 def _exit_without_teardown(code) -> None:

@@ -701,6 +701,27 @@ def test_ctrl_c_while_the_command_imports_exits_130_without_traceback(command, m
     assert capsys.readouterr().err == f"sb-{command}: interrupted\n"
 
 
+def test_ctrl_c_just_as_the_command_returns_exits_130_and_leaves_host_handlers(monkeypatch, capsys):
+    # An interrupt that lands after the command's own handler has finished (between its
+    # return and the exit) is reported like any other; called in-process, the entry point
+    # does not replace the host's signal handlers on its way out.
+    import importlib
+    import types
+    entry = importlib.import_module("stereobudget.cli._entry")
+
+    def returns_then_interrupted():
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(entry.importlib, "import_module",
+                        lambda name: types.SimpleNamespace(main=returns_then_interrupted))
+    handlers = (signal.getsignal(signal.SIGINT), signal.getsignal(signal.SIGTERM))
+    with pytest.raises(SystemExit) as exit_info:
+        entry.encode()
+    assert exit_info.value.code == 130
+    assert capsys.readouterr().err == "sb-encode: interrupted\n"
+    assert (signal.getsignal(signal.SIGINT), signal.getsignal(signal.SIGTERM)) == handlers
+
+
 def test_entry_point_called_in_process_exits_normally(monkeypatch):
     # Only the console script itself skips the interpreter's teardown (os._exit); called
     # from Python (here: under pytest) the entry point must raise SystemExit as usual.
