@@ -393,42 +393,64 @@ print(json.dumps({"wall": sorted(times)[len(times) // 2], "cpu": sorted(cpus)[le
 """
 
 
-def scaling(*, sizes, disparities, methods, budget: int, repeats: int, per_point_timeout: float) -> list[dict]:
+def scaling(*, sizes, disparities, methods, budget: int, repeats: int, per_point_timeout: float,
+            rounds: int = 1) -> list[dict]:
+    """Time every (method, size, disparities) point in ``rounds`` rounds of fresh processes.
+
+    Each round visits every point once, the even rounds in order and the odd ones in
+    reverse, so a drift of the machine's speed during the section (it changes by up to 2x
+    within minutes) falls on every point alike instead of on the points run last; a
+    point's figures are the medians over its rounds, and the spread of its rounds is kept.
+    """
     from stereobudget.limits import estimate_decode_memory
-    rows = []
+    points = []
     for method in methods:
         for mp in sizes:
             side = int(round((mp * 1e6) ** 0.5))
-            h, w = side, side
             for nd in disparities:
-                estimate = estimate_decode_memory(h, w, nd, method)
-                point = {"method": method, "mp": mp, "h": h, "w": w, "nd": nd, "estimate": estimate}
-                print(f"  scaling: {method} {w}x{h} x {nd} (estimate {estimate / GIB:.1f} GiB) ...",
-                      file=sys.stderr, flush=True)
-                res = _run_child(_SCALING_CHILD, {"h": h, "w": w, "nd": nd, "method": method, "budget": budget,
-                                                  "repeats": repeats}, timeout=per_point_timeout)
-                point.update(res)
-                if "wall" in res:
-                    point["ns_per_nd"] = res["wall"] / (h * w * nd) * 1e9
-                    point["cpu_ns_per_nd"] = res["cpu"] / (h * w * nd) * 1e9
-                rows.append(point)
-    return rows
+                points.append({"method": method, "mp": mp, "h": side, "w": side, "nd": nd,
+                               "estimate": estimate_decode_memory(side, side, nd, method), "runs": []})
+    for round_index in range(rounds):
+        for point in (points if round_index % 2 == 0 else points[::-1]):
+            h, w, nd, method = point["h"], point["w"], point["nd"], point["method"]
+            print(f"  scaling, round {round_index + 1}/{rounds}: {method} {w}x{h} x {nd} "
+                  f"(estimate {point['estimate'] / GIB:.1f} GiB) ...", file=sys.stderr, flush=True)
+            point["runs"].append(_run_child(_SCALING_CHILD, {"h": h, "w": w, "nd": nd, "method": method,
+                                                             "budget": budget, "repeats": repeats},
+                                            timeout=per_point_timeout))
+    for point in points:
+        good = [run for run in point["runs"] if "wall" in run]
+        if len(good) < len(point["runs"]):
+            point["error"] = next(run.get("error", "no result") for run in point["runs"] if "wall" not in run)
+            continue
+        pixels_layers = point["h"] * point["w"] * point["nd"]
+        point.update(wall=_median([run["wall"] for run in good]), cpu=_median([run["cpu"] for run in good]),
+                     peak=max(run["peak"] for run in good), base=good[0]["base"], tile_rows=good[0]["tile_rows"],
+                     reset=all(run["reset"] for run in good))
+        point["ns_per_nd"] = point["wall"] / pixels_layers * 1e9
+        point["cpu_ns_per_nd"] = point["cpu"] / pixels_layers * 1e9
+        point["cpu_ns_per_nd_runs"] = [run["cpu"] / pixels_layers * 1e9 for run in good]
+    return points
 
 
 def scaling_report(rows: list[dict], budget: int) -> list[str]:
-    lines = ["### Scaling (synthetic smooth texture, stride 5; one fresh process per point, "
-             "median of its runs)", "",
-             "| method | size | disparities | wall s | ns / (px·disp), wall | CPU | peak RSS | est. | note |",
-             "|---|---|---:|---:|---:|---:|---:|---:|---|"]
+    rounds = max((len(p.get("runs", [])) for p in rows), default=1)
+    lines = [f"### Scaling (synthetic smooth texture, stride 5; {rounds} round(s) of one fresh process per "
+             "point, the rounds in alternating order; medians over the rounds)", "",
+             "| method | size | disparities | wall s | ns / (px·disp), wall | CPU | CPU, the rounds | peak RSS | est. "
+             "| note |",
+             "|---|---|---:|---:|---:|---:|---|---:|---:|---|"]
     for p in rows:
         size = f"{p['w']}x{p['h']} ({p['mp']:g} MP)"
         if "error" in p:
-            lines.append(f"| {p['method']} | {size} | {p['nd']} | – | – | – | – | {p['estimate'] / GIB:.1f} GiB | "
-                         f"failed: {p['error']} |")
+            lines.append(f"| {p['method']} | {size} | {p['nd']} | – | – | – | – | – | {p['estimate'] / GIB:.1f} GiB "
+                         f"| failed: {p['error']} |")
             continue
         note = f"tiled, bands of {p['tile_rows']} rows (budget {budget / GIB:.0f} GiB)" if p.get("tile_rows") else ""
+        spread = ", ".join(f"{v:.1f}" for v in p.get("cpu_ns_per_nd_runs", []))
         lines.append(f"| {p['method']} | {size} | {p['nd']} | {p['wall']:.2f} | {p['ns_per_nd']:.1f} | "
-                     f"{p['cpu_ns_per_nd']:.1f} | {p['peak'] / GIB:.2f} GiB | {p['estimate'] / GIB:.1f} GiB | {note} |")
+                     f"{p['cpu_ns_per_nd']:.1f} | {spread} | {p['peak'] / GIB:.2f} GiB | {p['estimate'] / GIB:.1f} GiB "
+                     f"| {note} |")
     for method in sorted({p["method"] for p in rows}):
         for key, label in (("ns_per_nd", "wall"), ("cpu_ns_per_nd", "CPU")):
             values = [p[key] for p in rows if p["method"] == method and key in p and not p.get("tile_rows")]
@@ -696,6 +718,9 @@ def parse_args(argv=None):
     parser.add_argument("--sections", default="teddy,memory,scaling,cli,encoder",
                         help="comma-separated subset of teddy,memory,scaling,cli,encoder")
     parser.add_argument("--scaling-methods", default="sparse,hybrid", help="methods of the scaling section")
+    parser.add_argument("--scaling-rounds", type=int, default=3,
+                        help="rounds over the scaling points, one fresh process per point and round (the "
+                             "points' figures are medians over the rounds)")
     parser.add_argument("--big", action="store_true", help="also decode a 12 MP frame with 256 disparities")
     parser.add_argument("--big-methods", default="sparse", help="methods of the --big run (comma-separated)")
     parser.add_argument("--budget", type=float, default=8.0, help="memory budget in GiB for scaling / --big")
@@ -736,7 +761,8 @@ def main(argv=None) -> int:
     if "scaling" in sections:
         sizes, disps = ((0.25, 1.0), (64,)) if args.quick else ((0.25, 1.0, 4.0), (64, 128, 256))
         results["scaling"] = scaling(sizes=sizes, disparities=disps, methods=tuple(args.scaling_methods.split(",")),
-                                     budget=budget, repeats=1 if args.quick else 3, per_point_timeout=3600)
+                                     budget=budget, repeats=1, per_point_timeout=3600,
+                                     rounds=1 if args.quick else args.scaling_rounds)
     if "cli" in sections:
         print("command line ...", file=sys.stderr, flush=True)
         results["cli"] = cli_benchmark(data_dir, repeats=3 if args.quick else 5)
