@@ -14,8 +14,11 @@ Sections (each timed in this one run, so the ratios compare like with like):
    Memory: the bandwidth of one pass over a Teddy volume, and the tree aggregation of
    that grid at 8-61 layers on 1 and 2 threads (per-node vs per-layer cost).
 3. Scaling: synthetic smooth-texture pairs at 0.25, 1 and 4 MP x 64 / 128 / 256
-   disparities, one fresh subprocess per point: time per (pixel x disparity) and peak
-   resident memory.  Points whose memory estimate exceeds ``--budget`` (8 GiB) run
+   disparities: time per (pixel x disparity) and peak resident memory.  ``--scaling-rounds``
+   (3) rounds, each timing every point in a fresh subprocess (even rounds forward, odd
+   ones backward, so a drift of the machine's speed falls on all points alike); each
+   subprocess decodes once at the point's size (reported apart: it also pays for the
+   host backing new memory) before the timed decode from fresh memory.  Points whose memory estimate exceeds ``--budget`` (8 GiB) run
    tiled under that budget and are marked so.
 4. Command line: the process wall time of a single-shot ``sb-decode`` on Teddy with a
    warm numba cache (what a cron job pays per call), and of ``sb-encode --raw``, which
