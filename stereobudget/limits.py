@@ -173,11 +173,25 @@ def estimate_decode_memory(height: int, width: int, num_disp: int, method: str, 
 
 
 def available_memory() -> int | None:
-    """Memory the system can give a new allocation without swapping, in bytes (None if unknown).
+    """Memory a decode can have without swapping, in bytes (None if unknown).
 
     ``MemAvailable`` from ``/proc/meminfo`` (Linux), else free physical pages from
-    ``os.sysconf``; a cgroup memory limit below that (containers) is honoured.
+    ``os.sysconf``; a cgroup memory limit below that (containers) is honoured.  The
+    spare volumes this process holds for its next decode (:mod:`stereobudget.scratch`)
+    are added: that decode reuses them or frees them first.
     """
+    available = _system_available_memory()
+    if available is not None:
+        # Not imported here when absent (then nothing is held): the camera side stays
+        # free of numpy.
+        import sys as _sys
+        scratch = _sys.modules.get("stereobudget.scratch")
+        if scratch is not None:
+            available += scratch.spare_bytes()
+    return available
+
+
+def _system_available_memory() -> int | None:
     available = None
     try:
         with open("/proc/meminfo", "rb") as handle:

@@ -96,11 +96,48 @@ def test_spare_volumes_are_reused_only_once_and_within_the_limit(monkeypatch):
     assert np.shares_memory(again, first) and again.shape == (7, 10) and again.dtype == np.float32
     assert not np.shares_memory(scratch.empty_volume((7, 10)), first)   # ... to one caller only
     monkeypatch.setattr(scratch, "SPARE_BYTES", 1000)
-    scratch.recycle(np.empty(300, np.float32))         # too large to keep
+    monkeypatch.setenv("STEREOBUDGET_KEEP_FREED_MEMORY", "0")
+    scratch.recycle(np.empty(300, np.float32))         # too large to keep (large spares are off)
     scratch.recycle(np.empty(200, np.float32), np.empty(200, np.float32))   # only the newest fits
     assert [s.size for s in scratch._spare] == [200]
     scratch.release()
     assert scratch._spare == []
+
+
+def test_large_spares_serve_the_same_size_and_go_before_another_size_is_allocated(monkeypatch):
+    # Volumes over SPARE_BYTES (a megapixel frame's) are kept for the next decode of the
+    # same size; a large request of another size (another frame size) drops them first,
+    # so stale volumes are never held beside new ones.  Small spares are not affected.
+    from stereobudget import scratch
+    scratch.release()
+    monkeypatch.setattr(scratch, "SPARE_BYTES", 1000)          # > 250 float32 values is "large"
+    monkeypatch.delenv("STEREOBUDGET_KEEP_FREED_MEMORY", raising=False)
+    big = scratch.empty_volume((20, 30))
+    small = scratch.empty_volume((10, 10))
+    scratch.recycle(small, big)
+    assert scratch.spare_bytes() == 4 * (600 + 100)
+    again = scratch.zeroed_volume((30, 20))
+    assert np.shares_memory(again, big) and not again.any()
+    scratch.recycle(again)
+    scratch.empty_volume((3, 3))                               # a small miss keeps the large spare
+    assert sorted(s.size for s in scratch._spare) == [100, 600]
+    other = scratch.empty_volume((40, 30))                     # a large miss: another frame size
+    assert not np.shares_memory(other, big)
+    assert [s.size for s in scratch._spare] == [100]
+    scratch.release()
+    assert scratch.spare_bytes() == 0
+
+
+def test_available_memory_counts_the_spares_a_decode_will_take(monkeypatch):
+    from stereobudget import limits, scratch
+    scratch.release()
+    monkeypatch.setattr(limits, "_system_available_memory", lambda: 10 ** 9)
+    assert limits.available_memory() == 10 ** 9
+    scratch.recycle(np.empty(1000, np.float32))
+    assert limits.available_memory() == 10 ** 9 + 4000
+    monkeypatch.setattr(limits, "_system_available_memory", lambda: None)
+    assert limits.available_memory() is None
+    scratch.release()
 
 
 def test_decodes_in_one_process_give_the_same_disparity_with_recycled_volumes():
