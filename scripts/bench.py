@@ -393,7 +393,7 @@ except OSError:
 times, cpus = [], []
 for _ in range(repeats):
     # Every timed decode starts from fresh memory, as the first decode of a process does:
-    # only volumes up to scratch.SPARE_BYTES are reused, and that would favour the small points.
+    # spare volumes would be reused (the small points' always, within scratch.SPARE_BYTES).
     scratch.release()
     c, t = time.process_time(), time.perf_counter()
     res = decode(left, samples, max_disp=nd - 1, method=method, max_memory=budget)

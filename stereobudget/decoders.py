@@ -373,10 +373,12 @@ def decode(left: np.ndarray, samples: SampleSet, *, max_disp: int, min_disp: int
     Notes
     -----
     Decodes in one process hand memory to each other: dead cost volumes are kept for
-    the next decode (:mod:`stereobudget.scratch`, at most 256 MiB), and the first call
-    lets glibc keep freed blocks mapped (:func:`stereobudget.scratch.keep_freed_memory`;
-    ``STEREOBUDGET_KEEP_FREED_MEMORY=0`` opts out).  :func:`stereobudget.scratch.release`
-    gives both back.
+    the next decode (:mod:`stereobudget.scratch`: up to 256 MiB of small ones, and the
+    large ones of a frame size until another frame size needs large volumes; the memory
+    limit counts them as available), and the first call lets glibc keep freed blocks
+    mapped (:func:`stereobudget.scratch.keep_freed_memory`).
+    ``STEREOBUDGET_KEEP_FREED_MEMORY=0`` opts out of both but the 256 MiB;
+    :func:`stereobudget.scratch.release` gives everything back.
     """
     # Each decode's temporaries are the next one's: keep them mapped (no page faults).
     scratch.keep_freed_memory()
