@@ -25,6 +25,8 @@ Sections (each timed in this one run, so the ratios compare like with like):
    must not import numpy, numba or OpenCV (checked).  ``--cli-env VENV`` times the
    commands of another environment, e.g. one made by a plain ``pip install .`` (the
    test extra brings SciPy, which numba imports on its first kernel: ~0.3 s more).
+   Reuse (``--sections reuse``): a batch's frames at 1-4 MP decoded on new memory and
+   on the previous decode's volumes (``stereobudget.scratch``), alternating.
 5. Encoder: ``encode_image`` + ``write_samples`` frames/s in-process and per process, vs
    OpenCV's JPEG 2000 and WebP encoders at a quality binary-searched to the same bytes.
 6. ``--big``: a 12 MP (4000x3000) frame with 256 disparities, Sparse (tiled
@@ -494,6 +496,75 @@ def scaling_report(rows: list[dict], budget: int) -> list[str]:
 
 
 # --------------------------------------------------------------------------------------
+# 3b. a batch's frames on reused volumes
+
+_REUSE_CHILD = r"""
+import json, os, resource, sys, time
+import numpy as np
+sys.path.insert(0, os.path.join(os.getcwd(), "scripts"))
+from bench import smooth_pair
+from stereobudget.container import encode_image
+from stereobudget.sampling import SamplingPattern
+from stereobudget.decoders import decode
+from stereobudget import scratch
+a = json.loads(sys.argv[1])
+h, w, nd, method, repeats = a["h"], a["w"], a["nd"], a["method"], a["repeats"]
+l, r = smooth_pair(48, 96, 8)
+decode(l, encode_image(r, pattern=SamplingPattern("grid", 5, 5)), max_disp=15, method=method)
+left, right = smooth_pair(h, w, nd // 4)
+samples = encode_image(right, pattern=SamplingPattern("grid", 5, 5))
+reference = decode(left, samples, max_disp=nd - 1, method=method, tile_rows=0).disparity
+runs = {"fresh": [], "reused": []}
+for _ in range(repeats):
+    for mode in ("fresh", "reused"):     # alternating: a drift of the machine hits both alike
+        if mode == "fresh":
+            scratch.release()
+        faults = resource.getrusage(resource.RUSAGE_SELF).ru_minflt
+        c, t = time.process_time(), time.perf_counter()
+        disparity = decode(left, samples, max_disp=nd - 1, method=method, tile_rows=0).disparity
+        wall, cpu = time.perf_counter() - t, time.process_time() - c
+        faults = resource.getrusage(resource.RUSAGE_SELF).ru_minflt - faults
+        if not np.array_equal(disparity, reference):
+            raise SystemExit("a decode on reused volumes differs")
+        runs[mode].append((wall, cpu, faults))
+med = lambda values: sorted(values)[len(values) // 2]
+print(json.dumps({mode: {"wall": med([v[0] for v in vs]), "cpu": med([v[1] for v in vs]),
+                         "faults": med([v[2] for v in vs])} for mode, vs in runs.items()}))
+"""
+
+REUSE_CASES = (("hybrid", 1000, 1000, 256), ("hybrid", 2000, 2000, 64), ("sparse", 1000, 1000, 128))
+
+
+def reuse_benchmark(*, repeats: int) -> list[dict]:
+    """Fresh memory vs the previous decode's volumes, alternating in one process per case."""
+    rows = []
+    for method, h, w, nd in REUSE_CASES:
+        print(f"  reuse: {method} {w}x{h} x {nd} ...", file=sys.stderr, flush=True)
+        row = {"method": method, "h": h, "w": w, "nd": nd}
+        row.update(_run_child(_REUSE_CHILD, {"h": h, "w": w, "nd": nd, "method": method, "repeats": repeats}))
+        rows.append(row)
+    return rows
+
+
+def reuse_report(rows: list[dict]) -> list[str]:
+    lines = ["### A batch's frames: new memory vs the previous decode's volumes (one process per case, "
+             "alternating, medians; every decode bit-identical)", "",
+             "| method | frame | disparities | CPU ns/(px·disp), fresh | reused | wall ns/(px·disp), fresh | reused "
+             "| page faults, fresh | reused |",
+             "|---|---|---:|---:|---:|---:|---:|---:|---:|"]
+    for r in rows:
+        if "error" in r:
+            lines.append(f"| {r['method']} | {r['w']}x{r['h']} | {r['nd']} | failed: {r['error']} | | | | | |")
+            continue
+        n = r["h"] * r["w"] * r["nd"] / 1e9
+        f, u = r["fresh"], r["reused"]
+        lines.append(f"| {r['method']} | {r['w']}x{r['h']} | {r['nd']} | {f['cpu'] / n:.1f} | {u['cpu'] / n:.1f} "
+                     f"({100 * (u['cpu'] / f['cpu'] - 1):+.0f} %) | {f['wall'] / n:.1f} | {u['wall'] / n:.1f} | "
+                     f"{f['faults']} | {u['faults']} |")
+    return lines + [""]
+
+
+# --------------------------------------------------------------------------------------
 # 4. command line
 
 
@@ -731,8 +802,8 @@ def parse_args(argv=None):
                         help="1-3 minutes: 5 Teddy runs, scaling at 0.25/1 MP x 64 only, short encoder timing")
     parser.add_argument("--repeats", type=int, default=None, help="timed runs per measurement (default 7, quick 5)")
     parser.add_argument("--skip-scaling", action="store_true")
-    parser.add_argument("--sections", default="teddy,memory,scaling,cli,encoder",
-                        help="comma-separated subset of teddy,memory,scaling,cli,encoder")
+    parser.add_argument("--sections", default="teddy,memory,scaling,reuse,cli,encoder",
+                        help="comma-separated subset of teddy,memory,scaling,reuse,cli,encoder")
     parser.add_argument("--scaling-methods", default="sparse,hybrid", help="methods of the scaling section")
     parser.add_argument("--scaling-rounds", type=int, default=3,
                         help="rounds over the scaling points, one fresh process per point and round (the "
@@ -779,6 +850,8 @@ def main(argv=None) -> int:
         results["scaling"] = scaling(sizes=sizes, disparities=disps, methods=tuple(args.scaling_methods.split(",")),
                                      budget=budget, repeats=1, per_point_timeout=3600,
                                      rounds=1 if args.quick else args.scaling_rounds)
+    if "reuse" in sections:
+        results["reuse"] = reuse_benchmark(repeats=3 if args.quick else 6)
     if "cli" in sections:
         print("command line ...", file=sys.stderr, flush=True)
         results["cli"] = cli_benchmark(data_dir, repeats=3 if args.quick else 5)
@@ -805,6 +878,8 @@ def main(argv=None) -> int:
         report += memory_report(results["memory"])
     if "scaling" in results:
         report += scaling_report(results["scaling"], budget)
+    if "reuse" in results:
+        report += reuse_report(results["reuse"])
     if "cli" in results:
         report += cli_report(results["cli"])
     if "encoder" in results:
