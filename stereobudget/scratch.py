@@ -9,7 +9,7 @@ Volumes of up to :data:`SPARE_BYTES` in all are kept whatever their size; larger
 (frames of a megapixel and more, the bands of a tiled decode) are kept too, until a
 large volume of another size is asked for (another frame size: they are dropped before
 it is allocated, so stale volumes are never held beside new ones).  New memory costs
-the most there: a 1 MP x 256 Hybrid decode takes ~30 % less CPU time on reused volumes
+the most there: 1-4 MP decodes took 9-25 % less CPU time on reused volumes
 (docs/performance.md, ninth session).  :func:`spare_bytes` tells the memory check what
 is held; :func:`release` drops everything.  A single decode in a fresh process (one
 ``sb-decode`` call) gains nothing and loses nothing.
@@ -29,8 +29,9 @@ import numpy as np
 
 from ._parallel import fill_zero
 
-#: Bytes of volume memory kept between decodes in volumes of any size (the oldest go
-#: first); a volume larger than this is a "large" spare, kept while its size is asked for.
+#: Small spare volumes (each at most this many bytes) are kept between decodes up to this
+#: total, the oldest going first; a larger volume is a "large" spare, kept until a large
+#: volume of another size is asked for.
 SPARE_BYTES = 256 * 2 ** 20
 
 _lock = threading.Lock()
