@@ -871,6 +871,8 @@ def _run_dask(jobs: list, fn: Callable, scheduler, workers: int, threads: int | 
                 yield future.result()
             except Exception as exc:  # noqa: BLE001 -- a lost worker fails its file only
                 yield _crashed(index.get(future.key), exc)
+        if cluster is None:
+            _release_worker_volumes(client)
     finally:
         for future in futures:
             if not future.done():
@@ -879,6 +881,21 @@ def _run_dask(jobs: list, fn: Callable, scheduler, workers: int, threads: int | 
             client.close()
         if cluster is not None:
             cluster.close()
+
+
+def _release_worker_volumes(client) -> None:
+    """Drop the spare volumes the jobs left on the workers of a cluster that outlives the batch.
+
+    Each worker keeps its last decode's volumes for the next one of the same frame size
+    (:mod:`stereobudget.scratch`), GiBs at large frames; once the batch is done they are
+    memory the cluster's other work cannot have.  Best effort: a worker that is gone is
+    skipped.
+    """
+    from .scratch import release
+    try:
+        client.run(release, on_error="ignore")
+    except Exception as exc:  # noqa: BLE001 -- a closed client or an older distributed
+        log.debug("could not release the workers' spare volumes: %s", exc)
 
 
 def _with_threads(job, threads: int):

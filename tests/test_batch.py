@@ -291,9 +291,13 @@ def test_run_jobs_on_a_threaded_dask_client(tmp_path):
             for i in range(2)]
     jobs.append(batch.DecodeJob(left=str(left_dir / "f00.png"), samples=str(left_dir / "f01.png"),
                                 disparity=str(tmp_path / "bad.npy"), max_disp=MAX_DISP, batch=True))
+    from stereobudget import scratch
     with distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=False,
                                   dashboard_address=None) as cluster, distributed.Client(cluster) as client:
         results = list(batch.run_jobs(jobs, batch.decode_job, scheduler=client))
+        # The client's workers outlive the batch: the volumes its decodes kept for a next
+        # frame are handed back (these workers are threads of this process).
+        assert scratch.spare_bytes() == 0
     assert sorted(r["status"] for r in results) == ["failed", "ok", "ok"]
     failed = next(r for r in results if r["status"] == "failed")
     assert failed["error_class"] == "NotASampleFileError" and failed["exit_code"] == NotASampleFileError.exit_code
