@@ -9,7 +9,7 @@ Volumes of up to :data:`SPARE_BYTES` in all are kept whatever their size; larger
 (frames of a megapixel and more, the bands of a tiled decode) are kept too, until a
 large volume of another size is asked for (another frame size: they are dropped before
 it is allocated, so stale volumes are never held beside new ones).  New memory costs
-the most there: 1-4 MP decodes took 9-25 % less CPU time on reused volumes
+the most there: 1-4 MP decodes took 9-35 % less CPU time on reused volumes
 (docs/performance.md, ninth session).  :func:`spare_bytes` tells the memory check what
 is held; :func:`release` drops everything.  A single decode in a fresh process (one
 ``sb-decode`` call) gains nothing and loses nothing.
