@@ -355,7 +355,10 @@ def memory_report(r: dict) -> list[str]:
 # --------------------------------------------------------------------------------------
 # 3. scaling
 
-_SCALING_CHILD = r"""
+# What every measuring subprocess starts with: the imports, its arguments in ``a``, and
+# ``warm_pair``, which loads the JIT cache on a tiny pair (so no compilation is timed)
+# and returns the point's synthetic pair as (left, samples).
+_CHILD_PRELUDE = r"""
 import json, os, resource, sys, time
 import numpy as np
 sys.path.insert(0, os.path.join(os.getcwd(), "scripts"))
@@ -365,17 +368,21 @@ from stereobudget.sampling import SamplingPattern
 from stereobudget.decoders import decode, auto_tile_rows
 from stereobudget import scratch
 a = json.loads(sys.argv[1])
+def warm_pair(method, h, w, shift):
+    l, r = smooth_pair(48, 96, 8)
+    decode(l, encode_image(r, pattern=SamplingPattern("grid", 5, 5)), max_disp=15, method=method)
+    left, right = smooth_pair(h, w, shift)
+    return left, encode_image(right, pattern=SamplingPattern("grid", 5, 5))
+"""
+
+_SCALING_CHILD = _CHILD_PRELUDE + r"""
 h, w, nd, method, budget, repeats = a["h"], a["w"], a["nd"], a["method"], a["budget"], a["repeats"]
 def rss(field):
     for line in open("/proc/self/status"):
         if line.startswith(field):
             return int(line.split()[1]) * 1024
     return None
-# Warm-up on a tiny pair: loads the JIT cache so compilation is not timed.
-l, r = smooth_pair(48, 96, 8)
-decode(l, encode_image(r, pattern=SamplingPattern("grid", 5, 5)), max_disp=15, method=method)
-left, right = smooth_pair(h, w, nd // 4)
-samples = encode_image(right, pattern=SamplingPattern("grid", 5, 5))
+left, samples = warm_pair(method, h, w, nd // 4)
 tiles = auto_tile_rows(samples, num_disp=nd, method=method, max_memory=budget)
 # The process's first decode at this size, timed on its own: it also pays for the host
 # backing the guest's fresh memory (this VM backs it lazily: ~2x the cost stage's time),
@@ -498,21 +505,9 @@ def scaling_report(rows: list[dict], budget: int) -> list[str]:
 # --------------------------------------------------------------------------------------
 # 3b. a batch's frames on reused volumes
 
-_REUSE_CHILD = r"""
-import json, os, resource, sys, time
-import numpy as np
-sys.path.insert(0, os.path.join(os.getcwd(), "scripts"))
-from bench import smooth_pair
-from stereobudget.container import encode_image
-from stereobudget.sampling import SamplingPattern
-from stereobudget.decoders import decode
-from stereobudget import scratch
-a = json.loads(sys.argv[1])
+_REUSE_CHILD = _CHILD_PRELUDE + r"""
 h, w, nd, method, repeats = a["h"], a["w"], a["nd"], a["method"], a["repeats"]
-l, r = smooth_pair(48, 96, 8)
-decode(l, encode_image(r, pattern=SamplingPattern("grid", 5, 5)), max_disp=15, method=method)
-left, right = smooth_pair(h, w, nd // 4)
-samples = encode_image(right, pattern=SamplingPattern("grid", 5, 5))
+left, samples = warm_pair(method, h, w, nd // 4)
 reference = decode(left, samples, max_disp=nd - 1, method=method, tile_rows=0).disparity
 runs = {"fresh": [], "reused": []}
 for _ in range(repeats):
@@ -742,21 +737,10 @@ def encoder_report(r: dict, cli: dict | None) -> list[str]:
 # --------------------------------------------------------------------------------------
 # 6. 12 MP
 
-_BIG_CHILD = r"""
-import json, os, resource, sys, time
-import numpy as np
-sys.path.insert(0, os.path.join(os.getcwd(), "scripts"))
-from bench import smooth_pair
-from stereobudget.container import encode_image
-from stereobudget.sampling import SamplingPattern
-from stereobudget.decoders import decode, auto_tile_rows
+_BIG_CHILD = _CHILD_PRELUDE + r"""
 from stereobudget.limits import estimate_decode_memory
-a = json.loads(sys.argv[1])
 h, w, nd, method, budget = a["h"], a["w"], a["nd"], a["method"], a["budget"]
-l, r = smooth_pair(48, 96, 8)
-decode(l, encode_image(r, pattern=SamplingPattern("grid", 5, 5)), max_disp=15, method=method)
-left, right = smooth_pair(h, w, 64)
-samples = encode_image(right, pattern=SamplingPattern("grid", 5, 5))
+left, samples = warm_pair(method, h, w, 64)
 tiles = auto_tile_rows(samples, num_disp=nd, method=method, max_memory=budget)
 c, t = time.process_time(), time.perf_counter()
 res = decode(left, samples, max_disp=nd - 1, method=method, max_memory=budget)
