@@ -35,7 +35,8 @@ from ._parallel import fill_zero
 SPARE_BYTES = 256 * 2 ** 20
 
 _lock = threading.Lock()
-_spare: list = []
+_spare: list = []       # volumes of up to SPARE_BYTES each, at most SPARE_BYTES in all, oldest first
+_large: list = []       # larger volumes, of the frame size decoded last
 _malloc_tuned: list = []
 
 # glibc's mallopt parameters (malloc.h) and the largest mmap threshold it accepts on 64-bit.
@@ -102,11 +103,12 @@ def _take_spare(size: int):
     A large request that no spare matches comes from a decode of another frame size:
     the large spares (of the old size) are dropped before the new volume is allocated.
     """
-    for i, spare in enumerate(_spare):
-        if spare.size == size:
-            return _spare.pop(i)
+    for kept in (_spare, _large):
+        for i, spare in enumerate(kept):
+            if spare.size == size:
+                return kept.pop(i)
     if 4 * size > SPARE_BYTES:
-        _spare[:] = [spare for spare in _spare if spare.nbytes <= SPARE_BYTES]
+        _large.clear()
     return None
 
 
@@ -134,21 +136,18 @@ def recycle(*volumes) -> None:
             if (volume is None or volume.size == 0 or volume.dtype != np.float32
                     or not volume.flags.c_contiguous):
                 continue
-            if volume.nbytes <= SPARE_BYTES or keep_large:
+            if volume.nbytes <= SPARE_BYTES:
                 _spare.append(volume.reshape(-1))
-        small = [spare for spare in _spare if spare.nbytes <= SPARE_BYTES]
-        excess = sum(spare.nbytes for spare in small) - SPARE_BYTES
-        for spare in small:                 # the oldest small spares first
-            if excess <= 0:
-                break
-            _spare[:] = [kept for kept in _spare if kept is not spare]
-            excess -= spare.nbytes
+            elif keep_large:
+                _large.append(volume.reshape(-1))
+        while sum(spare.nbytes for spare in _spare) > SPARE_BYTES:
+            _spare.pop(0)
 
 
 def spare_bytes() -> int:
     """Bytes held in spare volumes (a decode takes them or drops them before allocating)."""
     with _lock:
-        return sum(spare.nbytes for spare in _spare)
+        return sum(spare.nbytes for spare in _spare + _large)
 
 
 def release() -> None:
@@ -156,6 +155,7 @@ def release() -> None:
     allocator's free memory back to the system."""
     with _lock:
         _spare.clear()
+        _large.clear()
     if _malloc_tuned and _malloc_tuned[0]:
         try:
             ctypes.CDLL(None).malloc_trim(0)
