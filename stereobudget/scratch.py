@@ -45,6 +45,11 @@ _M_MMAP_THRESHOLD = -3
 _MMAP_THRESHOLD_MAX = 32 * 2 ** 20
 
 
+def _keeping_memory() -> bool:
+    """False when ``STEREOBUDGET_KEEP_FREED_MEMORY=0`` opts out of keeping memory between decodes."""
+    return os.environ.get("STEREOBUDGET_KEEP_FREED_MEMORY", "1") != "0"
+
+
 def keep_freed_memory() -> bool:
     """Let the C allocator keep freed blocks of up to 32 MiB mapped, for the next decode.
 
@@ -66,7 +71,7 @@ def keep_freed_memory() -> bool:
     with _lock:
         if not _malloc_tuned:
             tuned = False
-            if sys.platform.startswith("linux") and os.environ.get("STEREOBUDGET_KEEP_FREED_MEMORY", "1") != "0":
+            if sys.platform.startswith("linux") and _keeping_memory():
                 try:
                     mallopt = ctypes.CDLL(None).mallopt
                     # Both or neither: a trim threshold alone turns off glibc's adaptive mmap
@@ -130,7 +135,7 @@ def recycle(*volumes) -> None:
     that total (the oldest go first); larger ones are kept unless
     ``STEREOBUDGET_KEEP_FREED_MEMORY=0``.
     """
-    keep_large = os.environ.get("STEREOBUDGET_KEEP_FREED_MEMORY", "1") != "0"
+    keep_large = _keeping_memory()
     with _lock:
         for volume in volumes:
             if (volume is None or volume.size == 0 or volume.dtype != np.float32
