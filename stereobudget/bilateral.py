@@ -263,14 +263,13 @@ def _add_corners_from(rows, corner_index, corner_weight, lo, n, acc):
 
 
 @njit(cache=True, inline="always")
-def _divide_or_fall_back(o, den, band_start, layer_base, spatial_val, spatial_base, spatial_band,
+def _divide_or_fall_back(o, den, n_out, band_start, layer_base, spatial_val, spatial_base, spatial_band,
                          y0, ty, x0, tx, eps, missing_value):
-    """o[i] /= den[i]; layers whose weight is below ``eps`` take the spatial-only fallback.
+    """o[i] /= den[i] for i < n_out; layers whose weight is below ``eps`` take the spatial-only fallback.
 
     Almost every pixel has weight in every layer, so the check is one vectorised count
     and the division one branch-free loop; the per-layer branch runs only when it must.
     """
-    n_out = o.shape[0]
     # A count, not a running minimum: an integer sum vectorises, a float min chain does not.
     light = 0
     for i in range(n_out):
@@ -300,6 +299,8 @@ class SliceGrids(NamedTuple):
     band holds that layer's own weights (``i >= first_band_layer[x0]``, see the lattice
     section below).  Where the weight is below ``eps`` a spatial-only fallback
     (``spatial_*``: the grids summed over intensity) is used, then ``missing_value``.
+    From layer ``first_missing_layer[x0]`` on, the band's weights are exactly zero at
+    both x-cells a pixel reads, so the fill is ``missing_value`` without slicing.
 
     Attributes
     ----------
@@ -312,6 +313,9 @@ class SliceGrids(NamedTuple):
     spatial_values, spatial_base, spatial_band : ndarray, float32 (GY, GX | band, K | B)
     first_band_layer : ndarray, int64 (GX,)
         First layer whose weight comes from the band, per x-cell (K: none).
+    first_missing_layer : ndarray, int64 (GX,)
+        First layer whose fill is ``missing_value`` at every pixel of x-cell x0 (no sample
+        of it reaches x-cells x0 and x0 + 1), per x-cell (K: none).
     layer_base : ndarray, int64 (K,)
     gy, gx, gz, band : int
         Grid cells per axis and band width in x-cells.
@@ -325,6 +329,7 @@ class SliceGrids(NamedTuple):
     spatial_base: np.ndarray
     spatial_band: np.ndarray
     first_band_layer: np.ndarray
+    first_missing_layer: np.ndarray
     layer_base: np.ndarray
     gy: int
     gx: int
@@ -336,16 +341,19 @@ class SliceGrids(NamedTuple):
     missing_value: np.float32
 
 
-def _slice_grids(values, base, band, geom, *, density, missing_value, first_band_layer=None):
+def _slice_grids(values, base, band, geom, *, density, missing_value, first_band_layer=None,
+                 first_missing_layer=None):
     """Pack blurred grids into :class:`SliceGrids`: ``values``, ``base`` and ``band`` are
     :func:`_blur_grid`'s (grid, spatial sums) pairs of (GY, GX | band, GZ, C) grids
-    (``band=None``: no band)."""
+    (``band=None``: no band; ``first_missing_layer=None``: no layer skipped)."""
     (grid_val, spatial_values), (base_w, spatial_base) = values, base
     gy, gx, gz, k = grid_val.shape
     n_base = base_w.shape[3]
     if band is None:
         band = np.zeros((gy, 0, gz, k), np.float32), np.zeros((gy, 0, k), np.float32)
         first_band_layer = np.full(gx, k, np.int64)
+    if first_missing_layer is None:
+        first_missing_layer = np.full(gx, k, np.int64)
     band_w, spatial_band = band
     band = band_w.shape[1]
     # A pixel whose filtered mask weight is this small has, in effect, no sample of its
@@ -356,6 +364,7 @@ def _slice_grids(values, base, band, geom, *, density, missing_value, first_band
         band_weights=band_w.reshape(gy * band * gz, k),
         spatial_values=spatial_values, spatial_base=spatial_base, spatial_band=spatial_band,
         first_band_layer=np.asarray(first_band_layer, np.int64),
+        first_missing_layer=np.asarray(first_missing_layer, np.int64),
         layer_base=np.arange(k, dtype=np.int64) % n_base,
         gy=gy, gx=gx, gz=gz, band=band,
         inv_cell_s=np.float32(1.0 / geom.cell_s), inv_cell_r=np.float32(1.0 / geom.cell_r),
@@ -393,15 +402,32 @@ def slice_pixel(grids, guide, y, x, o, den_base, den, corner_index, band_index, 
     y0, ty = _hat(y * grids.inv_cell_s, grids.gy)
     x0, tx = _hat(x * grids.inv_cell_s, grids.gx)
     z0, tz = _hat(guide[y, x] * grids.inv_cell_r, grids.gz)
+    # Layers from `live` on have zero weight and zero spatial weight here: their slice
+    # would end in the fallback's missing value, so it is written without the arithmetic
+    # (near the left border of a wide disparity search, most of a pixel's layers).
+    live = grids.first_missing_layer[x0]
+    if live >= n_out:
+        _slice_layers(grids, y0, ty, x0, tx, z0, tz, o, n_out, den_base, den, corner_index, band_index,
+                      corner_weight)
+    else:
+        _slice_layers(grids, y0, ty, x0, tx, z0, tz, o, live, den_base, den, corner_index, band_index,
+                      corner_weight)
+        for i in range(live, n_out):
+            o[i] = grids.missing_value
+
+
+@njit(cache=True, inline="always")
+def _slice_layers(grids, y0, ty, x0, tx, z0, tz, o, n, den_base, den, corner_index, band_index, corner_weight):
+    """Layers ``[0, n)`` of :func:`slice_pixel` at the pixel of cell coordinates (y0, ty, x0, tx, z0, tz)."""
     _trilinear_corners(y0, ty, x0, tx, z0, tz, grids.gx, grids.gz, corner_weight, corner_index)
-    _add_corners_from(grids.values, corner_index, corner_weight, 0, n_out, o)
+    _add_corners_from(grids.values, corner_index, corner_weight, 0, n, o)
     _add_corners_from(grids.base_weights, corner_index, corner_weight, 0, den_base.shape[0], den_base)
     start = grids.first_band_layer[x0]
-    _tile_into(den_base, den, min(start, n_out))
-    if start < n_out:
+    _tile_into(den_base, den, min(start, n))
+    if start < n:
         _trilinear_corners(y0, ty, x0, tx, z0, tz, grids.band, grids.gz, corner_weight, band_index)
-        _add_corners_from(grids.band_weights, band_index, corner_weight, start, n_out, den)
-    _divide_or_fall_back(o, den, start, grids.layer_base, grids.spatial_values, grids.spatial_base,
+        _add_corners_from(grids.band_weights, band_index, corner_weight, start, n, den)
+    _divide_or_fall_back(o, den, n, start, grids.layer_base, grids.spatial_values, grids.spatial_base,
                          grids.spatial_band, y0, ty, x0, tx, grids.eps, grids.missing_value)
 
 
@@ -736,6 +762,16 @@ def _lattice_sparse_dsi_grids(left, guide, rows, cols, right_values, right_steps
     last_changed = np.where(missing >= 0, hat_cell + 1 + reach, -1)
     band_n = int(min(max(int(last_changed.max()) + reach + 2, 1), gx))
     first_band_layer = np.searchsorted(last_changed, np.arange(gx), side="left").astype(np.int64)
+    # Lowest x-cell where layer i's band weights can be non-zero: its leftmost sample
+    # (left pixel ox + d_i) splats into its hat cell, which the blur spreads `reach` cells
+    # further left; a layer without samples has none.  The cell count rises with i, so
+    # each x-cell's first layer out of reach of both its corner cells is one search (one
+    # cell of margin against rounding: a layer is skipped only where it is surely zero).
+    leftmost = offset_x + min_disp + layers
+    lowest_cell = np.where(leftmost < w, np.minimum(np.floor(np.maximum(leftmost, 0) * inv_cs), gx - 2) - reach,
+                           gx + 2).astype(np.int64)
+    first_missing_layer = np.maximum(
+        first_band_layer, np.searchsorted(lowest_cell - 1, np.arange(gx) + 1, side="right")).astype(np.int64)
 
     grid_val = zeroed_volume(geom.shape + (num_disp,))
     band_w = zeroed_volume((gy, band_n, gz, num_disp))
@@ -752,7 +788,7 @@ def _lattice_sparse_dsi_grids(left, guide, rows, cols, right_values, right_steps
                    band_w, base_w, channel_of_residue, *_lattice_parts(sample_rows, inv_cs, gy, get_num_threads()))
     return _slice_grids(_blur_grid(grid_val, geom), _blur_grid(base_w, geom), _blur_grid(band_w, geom), geom,
                         density=len(rows) / float(h * w), missing_value=truncation,
-                        first_band_layer=first_band_layer)
+                        first_band_layer=first_band_layer, first_missing_layer=first_missing_layer)
 
 
 def sparse_joint_bilateral(guide: np.ndarray, rows: np.ndarray, cols: np.ndarray, values: np.ndarray, *,

@@ -145,7 +145,8 @@ def _no_grids(num_disp: int) -> SliceGrids:
     return SliceGrids(values=np.zeros((0, num_disp), f), base_weights=np.zeros((0, 1), f),
                       band_weights=np.zeros((0, num_disp), f), spatial_values=np.zeros((0, 0, num_disp), f),
                       spatial_base=np.zeros((0, 0, 1), f), spatial_band=np.zeros((0, 0, num_disp), f),
-                      first_band_layer=np.zeros(0, np.int64), layer_base=np.zeros(num_disp, np.int64),
+                      first_band_layer=np.zeros(0, np.int64), first_missing_layer=np.zeros(0, np.int64),
+                      layer_base=np.zeros(num_disp, np.int64),
                       gy=0, gx=0, gz=0, band=0, inv_cell_s=f(1.0), inv_cell_r=f(1.0), eps=f(0.0),
                       missing_value=f(0.0))
 

@@ -40,6 +40,28 @@ def test_split_weights_are_bit_identical(scene, monkeypatch, stride, offset_x, o
     np.testing.assert_array_equal(split, per_layer)
 
 
+@pytest.mark.parametrize("stride, offset_x, min_disp, num_disp", [(5, 0, 0, 120), (3, 2, 4, 100), (4, 1, 0, 140)])
+def test_layers_out_of_reach_are_written_as_missing_bit_identically(scene, monkeypatch, stride, offset_x, min_disp,
+                                                                      num_disp):
+    # A search range close to the width: left of x = d the layers have no sample, and the
+    # lattice path skips their slice where the band's weights are surely zero.
+    pattern = SamplingPattern("grid", stride, stride, offset_x, 1)
+    left, guide, rows, cols, values, _ = _inputs(scene, pattern)
+    kwargs = dict(min_disp=min_disp, num_disp=num_disp, sigma_s=2.0 * stride, sigma_r=15.0, truncation=15.0)
+    grids = bilateral.sparse_dsi_grids(left, guide, rows, cols, values, **kwargs)
+    skipped = grids.first_missing_layer < num_disp
+    assert skipped.any()
+    assert np.all(grids.first_missing_layer >= grids.first_band_layer)
+    split = bilateral.filled_sparse_dsi(left, guide, rows, cols, values, **kwargs)
+    x_cell = np.minimum(np.floor(np.arange(150) * grids.inv_cell_s), grids.gx - 2).astype(int)
+    first_missing = grids.first_missing_layer[x_cell]
+    layer = np.arange(num_disp)
+    assert np.all(split[:, layer[None, :] >= first_missing[:, None]] == np.float32(15.0))
+    monkeypatch.setattr(bilateral, "_lattice_stride", lambda *args: 0)
+    per_layer = bilateral.filled_sparse_dsi(left, guide, rows, cols, values, **kwargs)
+    np.testing.assert_array_equal(split, per_layer)
+
+
 def test_lattice_detection_rejects_other_layouts(scene):
     _, _, rows, cols, _, _ = _inputs(scene, SamplingPattern("jitter", 4, 4, seed=1))
     assert bilateral._lattice_stride(np.asarray(rows, np.int64), np.asarray(cols, np.int64), 150) == 0
