@@ -406,6 +406,8 @@ def slice_pixel(grids, guide, y, x, o, den_base, den, corner_index, band_index, 
     # would end in the fallback's missing value, so it is written without the arithmetic
     # (near the left border of a wide disparity search, most of a pixel's layers).
     live = grids.first_missing_layer[x0]
+    # Two calls rather than one with min(live, n_out): bounded by the row's own length the
+    # common case compiles as before (one call with a computed bound: Teddy's cost kernel 7 % slower).
     if live >= n_out:
         _slice_layers(grids, y0, ty, x0, tx, z0, tz, o, n_out, den_base, den, corner_index, band_index,
                       corner_weight)
