@@ -29,6 +29,7 @@ import numba
 import numpy as np
 from numba import njit, prange
 
+from ._jit import NO_REFCOUNTS
 from ._parallel import take
 from ._prefetch import prefetch_for_write, prefetch_row
 from ._simd import LANES, blend_rows_first_min
@@ -382,7 +383,7 @@ def _prefetch_node(out_flat, order, parent, position, disparities):
     prefetch_row(out_flat, parent[node], disparities)
 
 
-@njit(cache=True)
+@njit(cache=True, **NO_REFCOUNTS)
 def _upward_range(cost, levels, min_disp, order, parent, weight, out, ready, lo, hi):
     """Leaf-to-root pass over order positions ``[lo, hi)``, each node pushing into its parent.
 
@@ -452,7 +453,7 @@ def _make_ready(cost, levels, min_disp, out, ready, v):
         ready[v] = 1
 
 
-@njit(cache=True)
+@njit(cache=True, **NO_REFCOUNTS)
 def _downward_range(order, parent, weight, out, lo, hi, winners, min_disp, competing):
     """Root-to-leaf pass over order positions ``[lo, hi)``; parents must be final already.
 
