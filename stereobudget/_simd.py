@@ -248,57 +248,77 @@ def blend_rows_first_min(typingctx, row, above, similarity, keep, competing):
         length = cgutils.unpack_tuple(builder, row_view.shape, 1)[0]
         row_data = builder.bitcast(row_view.data, vector.as_pointer())
         above_data = builder.bitcast(above_view.data, vector.as_pointer())
-        limit = _broadcast(builder, builder.trunc(context.cast(builder, args[4], sig.args[4], types.int64), i32),
-                           indices)
+        competing = context.cast(builder, args[4], sig.args[4], types.int64)
+        limit = _broadcast(builder, builder.trunc(competing, i32), indices)
         similarity_vector, keep_vector = _broadcast(builder, args[2], vector), _broadcast(builder, args[3], vector)
         infinity = ir.Constant(vector, [float("inf")] * LANES)
         lane_numbers = ir.Constant(indices, list(range(LANES)))
-        step = ir.Constant(indices, [LANES] * LANES)
+        lanes = ir.Constant(i64, LANES)
 
-        def block(index, block_indices, best, best_index):
-            """Blend vector ``index`` of the rows; fold it into (best, best_index)."""
+        def block(index, best, best_index, padded):
+            """Blend vector ``index`` of the rows; fold it into (best, best_index).
+
+            A NaN never compares smaller, so it never wins without being replaced; lanes
+            past ``competing`` (only in a ``padded`` block) are kept out by the mask.
+            """
             above_values = builder.load(builder.gep(above_data, [index]), align=4)
             pointer = builder.gep(row_data, [index])
             values = builder.fadd(builder.fmul(similarity_vector, above_values),
                                   builder.fmul(keep_vector, builder.load(pointer, align=4)))
             builder.store(values, pointer, align=4)
-            # NaN, and the padding lanes past `competing`, read as +inf: they never win.
-            usable = builder.and_(builder.fcmp_ordered("ord", values, values),
-                                  builder.icmp_signed("<", block_indices, limit))
-            values = builder.select(usable, values, infinity)
+            block_indices = builder.add(_broadcast(builder, builder.trunc(builder.mul(index, lanes), i32), indices),
+                                        lane_numbers)
             smaller = builder.fcmp_ordered("<", values, best)
+            if padded:
+                smaller = builder.and_(smaller, builder.icmp_signed("<", block_indices, limit))
             return builder.select(smaller, values, best), builder.select(smaller, block_indices, best_index)
 
-        blocks = builder.sdiv(length, ir.Constant(i64, LANES))
-        entry = builder.block
-        loop = builder.append_basic_block("blend.loop")
-        done = builder.append_basic_block("blend.done")
-        builder.cbranch(builder.icmp_signed(">", blocks, ir.Constant(i64, 0)), loop, done)
-        builder.position_at_end(loop)
-        counter = builder.phi(i64)
-        block_indices = builder.phi(indices)
-        best = builder.phi(vector)
-        best_index = builder.phi(indices)
-        next_best, next_index = block(counter, block_indices, best, best_index)
-        next_counter = builder.add(counter, ir.Constant(i64, 1))
-        next_indices = builder.add(block_indices, step)
-        loop_end = builder.block
-        for phi, initial, following in ((counter, ir.Constant(i64, 0), next_counter),
-                                        (block_indices, lane_numbers, next_indices),
-                                        (best, infinity, next_best),
-                                        (best_index, lane_numbers, next_index)):
-            phi.add_incoming(initial, entry)
-            phi.add_incoming(following, loop_end)
-        builder.cbranch(builder.icmp_signed("<", next_counter, blocks), loop, done)
-        builder.position_at_end(done)
-        final_best = builder.phi(vector)
-        final_index = builder.phi(indices)
-        final_best.add_incoming(infinity, entry)
-        final_index.add_incoming(lane_numbers, entry)
-        final_best.add_incoming(next_best, loop_end)
-        final_index.add_incoming(next_index, loop_end)
+        def counted_loop(name, first, stop, state, body):
+            """``for k in range(first, stop): state = body(k, *state)``; returns the final state."""
+            entry = builder.block
+            loop = builder.append_basic_block(name + ".loop")
+            done = builder.append_basic_block(name + ".done")
+            builder.cbranch(builder.icmp_signed("<", first, stop), loop, done)
+            builder.position_at_end(loop)
+            counter = builder.phi(i64)
+            current = [builder.phi(value.type) for value in state]
+            following = body(counter, *current)
+            next_counter = builder.add(counter, ir.Constant(i64, 1))
+            loop_end = builder.block
+            counter.add_incoming(first, entry)
+            counter.add_incoming(next_counter, loop_end)
+            for phi, initial, value in zip(current, state, following):
+                phi.add_incoming(initial, entry)
+                phi.add_incoming(value, loop_end)
+            builder.cbranch(builder.icmp_signed("<", next_counter, stop), loop, done)
+            builder.position_at_end(done)
+            final = []
+            for initial, value in zip(state, following):
+                phi = builder.phi(initial.type)
+                phi.add_incoming(initial, entry)
+                phi.add_incoming(value, loop_end)
+                final.append(phi)
+            return final
+
+        blocks = builder.sdiv(length, lanes)
+        # Blocks whose lanes all compete go in pairs to two accumulators, A and B (two
+        # independent chains of compares); the rest, with the padding mask, to A.  Each
+        # lane of each accumulator sees its indices in increasing order, so a strict <
+        # keeps the first of equal values; A and B are merged by value, then by index.
+        pairs = builder.sdiv(competing, ir.Constant(i64, 2 * LANES))
+        start = (infinity, lane_numbers, infinity, lane_numbers)
+
+        def pair_body(counter, a, a_index, b, b_index):
+            first = builder.mul(counter, ir.Constant(i64, 2))
+            a, a_index = block(first, a, a_index, False)
+            b, b_index = block(builder.add(first, ir.Constant(i64, 1)), b, b_index, False)
+            return a, a_index, b, b_index
+
+        a, a_index, b, b_index = counted_loop("blend.pairs", ir.Constant(i64, 0), pairs, start, pair_body)
+        a, a_index = counted_loop("blend.rest", builder.mul(pairs, ir.Constant(i64, 2)), blocks, (a, a_index),
+                                  lambda counter, best, best_index: block(counter, best, best_index, True))
         # Lanes that never saw a usable value hold (+inf, lane number): an all-+inf row
         # still ties to index 0, as in the scalar scan.
-        return _best_lane_index(builder, final_best, final_index)
+        return _best_lane_index(builder, *_better(builder, a, a_index, b, b_index))
 
     return signature, codegen
