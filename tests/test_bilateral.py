@@ -109,9 +109,11 @@ def _blur_axis_in_tap_order(grid, kernel, axis):
 
 @pytest.mark.parametrize("channels", [1, 5, 64])
 @pytest.mark.parametrize("guide_max", [255.0, 20.0])  # 20: fewer intensity cells than z-taps
-def test_grid_blur_is_three_passes_bit_for_bit(channels, guide_max):
+@pytest.mark.parametrize("cells_per_sigma", [1.0, 2.0])  # seven taps (summed in one pass) and more
+def test_grid_blur_is_three_passes_bit_for_bit(channels, guide_max, cells_per_sigma):
     from stereobudget.bilateral import _blur_grid, grid_geometry
-    geom = grid_geometry(70, 95, guide_max, sigma_s=10.0, sigma_r=15.0, cells_per_sigma_s=1.0, cells_per_sigma_r=1.0)
+    geom = grid_geometry(70, 95, guide_max, sigma_s=10.0, sigma_r=15.0, cells_per_sigma_s=cells_per_sigma,
+                         cells_per_sigma_r=cells_per_sigma)
     rng = np.random.default_rng(3)
     grid = rng.uniform(0, 50, geom.shape + (channels,)).astype(np.float32)
     grid[rng.random(geom.shape) < 0.6] = 0.0  # splats leave most cells empty
