@@ -46,7 +46,7 @@ _UINT16_TO_8BIT = 1.0 / 257.0
 # Below this many pixels `aggregate` stays on one thread: waking a second one costs more.
 _PARALLEL_MIN_NODES = 16384
 # Walk steps ahead whose rows are prefetched.
-_PREFETCH_AHEAD = 8
+_PREFETCH_AHEAD = 16
 
 
 @dataclass(frozen=True)
