@@ -546,3 +546,12 @@ def test_tree_kernel_takes_the_walk_split_of_its_rows():
     built = build_tree(left)  # the same tree made into a layout afterwards: the walk finds the split
     rebuilt = MinimumSpanningTree(order=built.order, parent=built.parent, weight=built.weight, height=40, width=50)
     assert tree_layout(rebuilt).walk_split is None
+
+
+@pytest.mark.parametrize("shape", [(37, 41, 3), (1, 1, 3), (2, 9, 1), (5, 3, 4)])
+def test_float_guide_median_and_keys_in_one_kernel_equal_opencv_then_keys(shape):
+    rng = np.random.default_rng(31)
+    image = (rng.random(shape, dtype=np.float32) * 300 - 20).astype(np.float32)   # past both ends of the keys
+    image[rng.random(shape) < 0.3] = 12.5       # ties, and a value whose key rounds half to even
+    expected = tree_module._uint16_keys(tree_module._median_filtered(image, 3))
+    np.testing.assert_array_equal(tree_module._median3_uint16_keys(image), expected)
