@@ -266,8 +266,12 @@ def noise_level(image_f32: np.ndarray, *, block: int = 8, percentile: float = 20
     -------
     float
     """
+    return noise_level_of_gray(to_gray(image_f32), block=block, percentile=percentile)
+
+
+def noise_level_of_gray(gray: np.ndarray, *, block: int = 8, percentile: float = 20.0) -> float:
+    """:func:`noise_level` of an image already converted to gray (float32 (H, W), :func:`to_gray`)."""
     import cv2
-    gray = to_gray(image_f32)
     h, w = gray.shape
     if h < 3 * block or w < 3 * block:
         return 0.0

@@ -25,7 +25,7 @@ from dataclasses import dataclass, field, asdict, replace
 
 import numpy as np
 from .container import SampleSet
-from .cost import DEFAULT_TRUNCATION, noise_level, sample_row_steps, to_float_image, to_gray
+from .cost import DEFAULT_TRUNCATION, noise_level, noise_level_of_gray, sample_row_steps, to_float_image, to_gray
 from .sampling import grid_shape
 from .bilateral import filled_sparse_dsi, release_grids, sparse_dsi_grids
 from .limits import volume_layers
@@ -199,7 +199,8 @@ def _is_full_grid(samples: SampleSet) -> bool:
     return p.kind == "grid" and p.stride_x == 1 and p.stride_y == 1
 
 
-def adapt_to_noise(params: DecoderParams, left: np.ndarray, *, method: str) -> DecoderParams:
+def adapt_to_noise(params: DecoderParams, left: np.ndarray, *, method: str,
+                   gray: np.ndarray | None = None) -> DecoderParams:
     """Raise the cost truncations above what the left image's noise alone produces.
 
     With gray-level noise sigma (:func:`stereobudget.cost.noise_level`), two matching
@@ -210,10 +211,12 @@ def adapt_to_noise(params: DecoderParams, left: np.ndarray, *, method: str) -> D
     least ``noise_reference`` times its noise scale.  Hybrid's interpolated DSI and
     Downsample work on low-passed images whose noise is already averaged away, so they
     keep their truncations.  On Middlebury (sigma 0.7-2.05) this only touches Cones.
+    ``gray``: I1 as :func:`stereobudget.cost.to_gray` of its float image, when the caller
+    has it already (the noise is measured on it).
     """
     if params.noise_reference is None:
         return params
-    sigma = noise_level(to_float_image(left))
+    sigma = noise_level_of_gray(gray) if gray is not None else noise_level(to_float_image(left))
     k = params.noise_reference
     changes = {"noise_reference": None}
     if method in ("sparse", "hybrid"):
@@ -311,8 +314,9 @@ def _decode_downsample(left_f, samples, tree_guide, *, min_disp, num_disp, param
                                params=params, timer=timer)
 
 
-def _resolve_method(left, samples, *, method, params, min_disp, max_disp):
-    """Validate the inputs, pick the method a sample set implies, and adapt the params to I1's noise."""
+def _resolve_method(left, samples, *, method, params, min_disp, max_disp, adapt=True):
+    """Validate the inputs, pick the method a sample set implies, and (``adapt``) adapt the
+    params to I1's noise."""
     params = params or DecoderParams()
     method = method or DEFAULT_METHOD
     if method not in METHODS:
@@ -326,7 +330,7 @@ def _resolve_method(left, samples, *, method, params, min_disp, max_disp):
         raise OptionError(f"--method full needs every pixel of I2 (a sample file written with --stride 1); "
                           f"this one holds {samples.pattern.kind} samples at stride "
                           f"{samples.pattern.stride_x}x{samples.pattern.stride_y}")
-    return method, adapt_to_noise(params, left, method=method)
+    return method, (adapt_to_noise(params, left, method=method) if adapt else params)
 
 
 def decode(left: np.ndarray, samples: SampleSet, *, max_disp: int, min_disp: int = 0,
@@ -382,8 +386,10 @@ def decode(left: np.ndarray, samples: SampleSet, *, max_disp: int, min_disp: int
     """
     # Each decode's temporaries are the next one's: keep them mapped (no page faults).
     scratch.keep_freed_memory()
+    # The noise adaptation waits for I1's gray image (made below anyway); a tiled decode
+    # adapts on the whole frame in decode_tiled.
     method, params = _resolve_method(left, samples, method=method, params=params,
-                                     min_disp=min_disp, max_disp=max_disp)
+                                     min_disp=min_disp, max_disp=max_disp, adapt=False)
     overlap = DEFAULT_TILE_OVERLAP if tile_overlap is None else int(tile_overlap)
     if tile_rows is None:
         tile_rows = auto_tile_rows(samples, num_disp=int(max_disp - min_disp + 1), method=method,
@@ -402,6 +408,7 @@ def decode(left: np.ndarray, samples: SampleSet, *, max_disp: int, min_disp: int
     with timer("prepare"):
         left_f = to_float_image(left)
         guide = to_gray(left_f)
+        params = adapt_to_noise(params, left, method=method, gray=guide)
     # I1's tree is built by each method, with the right image's when it has one (concurrently).
     # An 8-bit I1 gives the same tree as its float copy, by a counting sort over 256 keys
     # instead of 65536 (~30 % faster).

@@ -137,6 +137,11 @@ def test_noisy_images_keep_costs_discriminative():
     samples = encode_image(sc.right, pattern=SamplingPattern("grid", 3, 3))
     result = stereobudget.decode(sc.left, samples, max_disp=int(np.ceil(sc.max_disp)), method="hybrid")
     assert _good_fraction(result.disparity, sc) >= 0.9
+    # decode measures the noise on the gray I1 it makes anyway: the same adaptation.
+    from stereobudget.cost import to_float_image, to_gray
+    assert result.params == adapt_to_noise(DecoderParams(), sc.left, method="hybrid")
+    assert adapt_to_noise(DecoderParams(), sc.left, method="hybrid", gray=to_gray(to_float_image(sc.left))) \
+        == result.params
 
 
 def test_sample_row_steps_are_exact_differences():
