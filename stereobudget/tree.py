@@ -603,6 +603,12 @@ def _aggregate_two_threads(cost, levels, order, parent, weight, out, winners, mi
 
 
 @njit(cache=True, inline="always")
+def _key_of(value, scale):
+    """``clip(rint(value * scale), 0, 65535)`` as uint16, for a finite float32 ``value``."""
+    return np.uint16(min(max(np.rint(value * scale), np.float32(0.0)), np.float32(65535.0)))
+
+
+@njit(cache=True, inline="always")
 def _sorted_pair(a, b):
     return min(a, b), max(a, b)
 
@@ -625,7 +631,7 @@ def _median3_uint16_keys(image):
         for c in range(channels):
             row = keys[y, c, 1:w + 1]
             for x in range(w):
-                row[x] = np.uint16(min(max(np.rint(image[y, x, c] * scale), np.float32(0.0)), np.float32(65535.0)))
+                row[x] = _key_of(image[y, x, c], scale)
             keys[y, c, 0] = keys[y, c, 1]
             keys[y, c, w + 1] = keys[y, c, w]
     out = np.empty((h, w, channels), dtype=np.uint16)
@@ -672,8 +678,7 @@ def _uint16_keys(image):
     for y in prange(h):
         for x in range(w):
             for c in range(channels):
-                key = np.rint(image[y, x, c] * scale)
-                out[y, x, c] = 0 if key < 0 else (65535 if key > 65535 else np.uint16(key))
+                out[y, x, c] = _key_of(image[y, x, c], scale)
     return out
 
 
