@@ -60,23 +60,24 @@ def _gather_right_row(buffer, xr, min_disp, out):
 
 
 @njit(cache=True, inline="always")
-def _gather_right_rows(buffer, y, min_disp, right_rows, right_flat, right_row_of_pixel, starts):
-    """The right view's rows of image row ``y`` from the left costs in ``buffer`` (W, D).
+def _gather_right_rows(buffer, w, y, min_disp, right_rows, right_flat, right_row_of_pixel, starts):
+    """The right view's rows of image row ``y`` from the left costs in ``buffer``.
 
-    Blocks of 8 right pixels x 8 layers whose diagonals stay inside the buffer are
-    copied as vectors (:func:`stereobudget._simd.skewed_block_copy`); the rest, near the
-    borders, element by element with clamping (:func:`_gather_right_row`).
+    ``buffer`` (W + P, D) holds the row's W left pixels, then P copies of the last one:
+    a diagonal that leaves the image on the right reads the border column, as the
+    clamped gather does, so the blocks near that border need no clamping.  Blocks of 8
+    right pixels x 8 layers whose diagonals stay inside the buffer are copied as vectors
+    (:func:`stereobudget._simd.skewed_block_copy`); the rest (the left border of a
+    negative ``min_disp``, a last block of fewer than 8 pixels, layer counts that are not
+    a multiple of 8), element by element with clamping (:func:`_gather_right_row`).
     """
-    w, num_disp = buffer.shape
-    source = buffer.reshape(w * num_disp)
+    rows, num_disp = buffer.shape
+    source = buffer.reshape(rows * num_disp)
     vector_layers = num_disp % LANES == 0
     for first in range(0, w, LANES):
-        if first + _PREFETCH_AHEAD < w:
-            for xr in range(first + _PREFETCH_AHEAD, min(first + _PREFETCH_AHEAD + LANES, w)):
-                prefetch_row(right_flat, right_row_of_pixel[y * w + xr], num_disp)
         base = first + min_disp
         # The block reads buffer rows base .. base + num_disp + 6.
-        if vector_layers and first + LANES <= w and base >= 0 and base + num_disp + LANES - 2 < w:
+        if vector_layers and first + LANES <= w and base >= 0 and base + num_disp + LANES - 2 < rows:
             for r in range(LANES):
                 starts[r] = right_row_of_pixel[y * w + first + r] * num_disp
             for layer in range(0, num_disp, LANES):
@@ -85,7 +86,7 @@ def _gather_right_rows(buffer, y, min_disp, right_rows, right_flat, right_row_of
                     starts[r] += LANES
         else:
             for xr in range(first, min(first + LANES, w)):
-                _gather_right_row(buffer, xr, min_disp, right_rows[right_row_of_pixel[y * w + xr]])
+                _gather_right_row(buffer[:w], xr, min_disp, right_rows[right_row_of_pixel[y * w + xr]])
 
 
 @njit(cache=True, parallel=True)
@@ -103,10 +104,12 @@ def _pair_rows(left, right, left_gray, right_gray, min_disp, truncation, grad_tr
     with_right = right_rows.shape[0] > 0
     left_flat = left_rows.reshape(left_rows.size)
     right_flat = right_rows.reshape(right_rows.size)
+    # Rows past the image that the right view's diagonals read (the clamped border column).
+    border_rows = max(min_disp, 0) + num_disp + LANES if with_right else 0
     first_column = -(min_disp + num_disp - 1)
     span = (w - 1 - min_disp) - first_column + 1
     for item in prange((h + _ROWS_PER_ITEM - 1) // _ROWS_PER_ITEM):
-        buffer = np.empty((w, num_disp), dtype=np.float32)
+        buffer = np.empty((w + border_rows, num_disp), dtype=np.float32)
         rev = np.empty((channels + 1, span), dtype=np.float32)
         dense = np.empty(num_disp, dtype=np.float32)
         den_base = np.empty(grids.base_weights.shape[1], dtype=np.float32)
@@ -120,6 +123,11 @@ def _pair_rows(left, right, left_gray, right_gray, min_disp, truncation, grad_tr
             for x in range(w):
                 if x + _PREFETCH_AHEAD < w:
                     prefetch_row(left_flat, left_row_of_pixel[y * w + x + _PREFETCH_AHEAD], num_disp)
+                if with_right:
+                    # The right view's rows are written after this image row's costs: asked
+                    # for now, their lines arrive during the row's work (asked for just
+                    # before the copy, in a burst, they cost the kernel ~15 %).
+                    prefetch_row(right_flat, right_row_of_pixel[y * w + x], num_disp)
                 o = buffer[x]
                 target = left_rows[left_row_of_pixel[y * w + x]]
                 if use_grids:
@@ -136,7 +144,10 @@ def _pair_rows(left, right, left_gray, right_gray, min_disp, truncation, grad_tr
                     for i in range(num_disp):
                         target[i] = o[i]
             if with_right:
-                _gather_right_rows(buffer, y, min_disp, right_rows, right_flat, right_row_of_pixel, starts)
+                last = buffer[w - 1]
+                for k in range(w, w + border_rows):
+                    buffer[k, :] = last
+                _gather_right_rows(buffer, w, y, min_disp, right_rows, right_flat, right_row_of_pixel, starts)
 
 
 def _no_grids(num_disp: int) -> SliceGrids:
