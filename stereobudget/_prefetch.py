@@ -46,8 +46,12 @@ def prefetch_for_write(typingctx, array, index):
 
 @njit(cache=True, inline="always")
 def prefetch_row(flat, row, row_length):
-    """Prefetch (for writing) every cache line of row ``row`` of an (N, row_length) array seen as ``flat``."""
+    """Prefetch (for writing) the cache lines of row ``row`` of an (N, row_length) array seen as ``flat``:
+    all of them when the array starts a line or the row is not a whole number of lines."""
     start = row * row_length
     for offset in range(0, row_length, LINE_FLOATS):
         prefetch_for_write(flat, start + offset)
-    prefetch_for_write(flat, start + row_length - 1)
+    if row_length % LINE_FLOATS != 0:
+        # A row of whole lines starts a line in a line-aligned volume
+        # (stereobudget.scratch.empty_volume); any other row may end in one more.
+        prefetch_for_write(flat, start + row_length - 1)

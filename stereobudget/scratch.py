@@ -94,12 +94,29 @@ def empty_volume(shape) -> np.ndarray:
     Returns
     -------
     numpy.ndarray
-        float32, contents undefined.
+        float32, contents undefined; a new one starts on a 64-byte cache line.
     """
     size = int(np.prod(shape, dtype=np.int64))
     with _lock:
         spare = _take_spare(size)
-    return np.empty(shape, np.float32) if spare is None else spare.reshape(shape)
+    return (_line_aligned_empty(size) if spare is None else spare).reshape(shape)
+
+
+#: Bytes of a cache line.
+_LINE_BYTES = 64
+
+
+def _line_aligned_empty(size: int) -> np.ndarray:
+    """An uninitialised float32 (size,) array whose first element starts a cache line.
+
+    Rows of 16k floats then start lines too, so a row's software prefetch asks for
+    exactly its lines (:func:`stereobudget._prefetch.prefetch_row`); numpy's own
+    allocations are 16-byte aligned.
+    """
+    per_line = _LINE_BYTES // 4
+    raw = np.empty(size + per_line, np.float32)
+    skip = (-(raw.ctypes.data // 4)) % per_line
+    return raw[skip:skip + size]
 
 
 def _take_spare(size: int):

@@ -104,6 +104,18 @@ def test_spare_volumes_are_reused_only_once_and_within_the_limit(monkeypatch):
     assert scratch._spare == []
 
 
+def test_new_volumes_start_a_cache_line_and_hold_what_is_asked():
+    # Rows of whole cache lines then start lines, and a row's prefetch asks for exactly those.
+    from stereobudget import scratch
+    scratch.release()
+    for shape in [(5, 64), (1, 1), (3, 7), (100, 16)]:
+        volume = scratch.empty_volume(shape)
+        assert volume.ctypes.data % 64 == 0
+        assert volume.shape == shape and volume.dtype == np.float32 and volume.flags.c_contiguous
+        volume[...] = 1.0
+        assert volume.sum() == np.prod(shape)
+
+
 def test_large_spares_serve_the_same_size_and_go_before_another_size_is_allocated(monkeypatch):
     # Volumes over SPARE_BYTES (a megapixel frame's) are kept for the next decode of the
     # same size; a large request of another size (another frame size) drops them first,
