@@ -145,6 +145,26 @@ def test_tree_is_a_minimum_spanning_tree(levels, median_size):
     assert total == pytest.approx(prim_minimum_weight(tree.height * tree.width, weights), abs=1e-9)
 
 
+@pytest.mark.parametrize("shape", [(1, 1), (1, 2), (2, 1), (1, 9), (9, 1), (2, 2), (3, 5), (17, 23), (40, 31)])
+@pytest.mark.parametrize("dtype", [np.uint8, np.uint16])
+def test_edges_are_sorted_stably_by_key(shape, dtype):
+    # The 8-bit path interleaves four quarters of the edges; both must equal a stable
+    # sort of the grid's edges by key (Kruskal's ties are broken by edge id).
+    rng = np.random.default_rng(sum(shape))
+    top = 6 if dtype == np.uint8 else 3000          # few keys: long runs of ties
+    image = rng.integers(0, top, shape + (3,)).astype(dtype)
+    height, width = shape
+    key_count = 256 if dtype == np.uint8 else 65536
+    keys = np.empty(2 * height * width, np.int32)
+    tree_module._edge_keys(image, keys, key_count)
+    edge_ids = np.arange(2 * height * width)
+    pixel = edge_ids // 2
+    inside = np.where(edge_ids % 2 == 0, pixel % width < width - 1, pixel // width < height - 1)
+    assert np.all(keys[~inside] == key_count) and np.all(keys[inside] < key_count)
+    expected = edge_ids[inside][np.argsort(keys[inside], kind="stable")]
+    np.testing.assert_array_equal(tree_module._counting_sorted_edges(keys, height, width, key_count), expected)
+
+
 def test_flat_image_keeps_zero_weight_edges():
     # All edges weigh 0: a tree that dropped zero-weight edges would not span.
     tree = build_tree(np.full((6, 7, 3), 90, np.uint8))
