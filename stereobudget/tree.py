@@ -211,8 +211,9 @@ def _edge_keys(image, keys, outside_key):
                 keys[first + 2 * c + 1] = outside_key
 
 
-#: Largest key count sorted by four interleaved passes (:func:`_interleaved_sorted_edges`);
-#: above it the four count tables cost more than the interleaving gains.
+#: Key counts up to this are sorted in four interleaved streams (:func:`_interleaved_sorted_edges`):
+#: 8-bit guides' 256 keys (Teddy's I1: 1.2 -> 0.5 ms).  16-bit guides' 65 536 keys are not:
+#: four count tables of that size cost more than the interleaving saves (0.65 -> 0.85 ms).
 _INTERLEAVED_KEY_COUNT = 4096
 
 

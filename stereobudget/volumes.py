@@ -4,9 +4,10 @@ Yang's left-right check aggregates a cost volume for each view on that view's ow
 The right view's costs are the left view's read along diagonals,
 ``C_R(x, d) = C_L(x + d, d)`` (left pixel ``x`` matches right pixel ``x - d``), so both
 come from one computation of ``C_L``.  That computation runs one image row at a time
-into a buffer of ``W x D`` float32 that stays in cache; from it every left pixel's costs
-are copied to its row of the left tree's layout, and every right pixel's costs are
-gathered to its row of the right tree's layout (:class:`stereobudget.tree.TreeLayout`).
+into a buffer of ``W x D`` float32 (and copies of the border column for the right view's
+diagonals) that stays in cache; from it every left pixel's costs are copied to its row of
+the left tree's layout, and every right pixel's costs are gathered to its row of the right
+tree's layout (:class:`stereobudget.tree.TreeLayout`).
 
 Compared with computing ``C_L`` as an (H, W, D) volume and deriving ``C_R`` from it,
 this writes each volume once and reads neither back, and both aggregation walks then
