@@ -125,6 +125,17 @@ def test_swallowed_interrupt_is_redelivered_not_printed(tmp_path):
     assert "Exception ignored" not in proc.stderr and "Traceback" not in proc.stderr, proc.stderr
 
 
+@pytest.fixture
+def sigint_raises_keyboard_interrupt():
+    """Python's own SIGINT handler for the test, whatever the suite was started with: a
+    shell starts background jobs (``cmd &``) with SIGINT ignored, and Python then keeps
+    ignoring it, so a raised SIGINT would do nothing."""
+    before = signal.signal(signal.SIGINT, signal.default_int_handler)
+    yield
+    signal.signal(signal.SIGINT, before)
+
+
+@pytest.mark.usefixtures("sigint_raises_keyboard_interrupt")
 def test_an_interrupt_as_the_temporary_file_is_created_leaves_no_file(tmp_path, monkeypatch):
     # A Ctrl-C that arrives while mkstemp runs (or just as it returns) must not leave the
     # new file behind under a name nobody recorded.
@@ -142,6 +153,7 @@ def test_an_interrupt_as_the_temporary_file_is_created_leaves_no_file(tmp_path, 
     assert os.listdir(tmp_path) == []
 
 
+@pytest.mark.usefixtures("sigint_raises_keyboard_interrupt")
 def test_interrupts_deferred_delivers_sigint_and_sigterm_after_the_block():
     def sigterm_as_interrupt(signum, frame):       # what the sb-* commands install
         raise KeyboardInterrupt
