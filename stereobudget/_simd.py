@@ -1,6 +1,6 @@
 """Hot inner loops written as vector code, eight float32 lanes at a time.
 
-LLVM leaves two hot loops of a decode scalar, and they are written here as plain LLVM IR
+LLVM leaves three hot loops of a decode scalar, and they are written here as plain LLVM IR
 vectors (no target-specific intrinsics; the results are the scalar loops', bit for bit):
 
 * :func:`first_min`, the index of a row's first minimum: every winner-take-all
@@ -14,11 +14,16 @@ vectors (no target-specific intrinsics; the results are the scalar loops', bit f
   diagonals (:mod:`stereobudget.volumes`): a strided read that LLVM turns into one
   scalar load per element.  Here eight source rows' vectors are blended into eight
   output rows.
+* :func:`periodic_corner_sum`, the Sparse fill's weights of every layer from the few
+  channels they repeat (:func:`stereobudget.bilateral.slice_pixel`): tiled element by
+  element, they made the vector loads that read them wait.
 
 :func:`blend_rows_first_min` fuses the first with the downward pass of a tree walk.
 """
 
 from __future__ import annotations
+
+import math
 
 from llvmlite import ir
 from numba import njit, types
@@ -56,7 +61,8 @@ def _broadcast(builder, scalar, vector_type):
     """``scalar`` in every lane of a ``vector_type`` value."""
     i32 = ir.IntType(32)
     vector = builder.insert_element(ir.Constant(vector_type, ir.Undefined), scalar, ir.Constant(i32, 0))
-    return builder.shuffle_vector(vector, vector, ir.Constant(ir.VectorType(i32, LANES), [0] * LANES))
+    return builder.shuffle_vector(vector, vector, ir.Constant(ir.VectorType(i32, vector_type.count),
+                                                              [0] * vector_type.count))
 
 
 @intrinsic
@@ -320,5 +326,123 @@ def blend_rows_first_min(typingctx, row, above, similarity, keep, competing):
         # Lanes that never saw a usable value hold (+inf, lane number): an all-+inf row
         # still ties to index 0, as in the scalar scan.
         return _best_lane_index(builder, *_better(builder, a, a_index, b, b_index))
+
+    return signature, codegen
+
+
+#: Most base channels :func:`periodic_corner_sum` takes (one 16-lane vector per corner).
+MAX_PERIOD_CHANNELS = 2 * LANES
+#: Readable floats that must follow the last row given to :func:`periodic_corner_sum`.
+PERIOD_READ_PAST = MAX_PERIOD_CHANNELS
+
+
+def period_lanes(channels: int) -> int:
+    """Lanes of one period of :func:`periodic_corner_sum`'s output: ``lcm(channels, 8)``."""
+    return channels * LANES // math.gcd(channels, LANES)
+
+
+#: Longest period of :func:`periodic_corner_sum` (15 channels: 120 lanes); a target of
+#: ``count + MAX_PERIOD_LANES`` floats holds what it writes for any channel count.
+MAX_PERIOD_LANES = max(period_lanes(b) for b in range(1, MAX_PERIOD_CHANNELS + 1))
+
+
+@intrinsic
+def periodic_corner_sum(typingctx, rows, corner_index, corner_weight, count, target):
+    """``target[i] = sum over the 8 corners c of corner_weight[c] * rows[corner_index[c], i % B]``
+    for ``i`` below ``count`` rounded up to whole periods (at least one); returns the
+    period, ``lcm(B, 8)`` lanes, or 0 (nothing written) when ``B = rows.shape[1]`` is not
+    in ``1 .. 16``.
+
+    The weight grid's B channels repeat along the layers (:class:`stereobudget.bilateral.SliceGrids`).
+    Summed as scalars and tiled into the layers element by element, each vector the
+    division then read waited for the scalar stores it spans to reach the cache.  Here
+    each corner's channels are one 16-lane load, the 8 products are summed in registers
+    (corner order, each product and sum rounded to float32: the scalar loop's sum, bit
+    for bit), and every output vector is a shuffle of the sum, stored whole.
+
+    ``rows`` (cells, B) float32 C-contiguous must be followed in memory by
+    :data:`PERIOD_READ_PAST` readable floats (the loads read past a row's B channels;
+    those lanes are never used), and ``target`` must hold ``count`` rounded up to a
+    multiple of ``lcm(B, 8)`` floats.  No index is checked.
+    """
+    if not (isinstance(rows, types.Array) and rows.ndim == 2 and rows.dtype == types.float32
+            and rows.layout == "C" and isinstance(corner_index, types.Array) and corner_index.ndim == 1
+            and corner_index.dtype == types.int64 and isinstance(corner_weight, types.Array)
+            and corner_weight.ndim == 1 and corner_weight.dtype == types.float32
+            and isinstance(count, types.Integer) and isinstance(target, types.Array) and target.ndim == 1
+            and target.dtype == types.float32 and target.layout == "C"):
+        return None
+    signature = types.int64(rows, corner_index, corner_weight, count, target)
+
+    def codegen(context, builder, sig, args):
+        f32, i32, i64 = ir.FloatType(), ir.IntType(32), ir.IntType(64)
+        wide, vector = ir.VectorType(f32, MAX_PERIOD_CHANNELS), ir.VectorType(f32, LANES)
+        rows_view = context.make_array(sig.args[0])(context, builder, args[0])
+        index_view = context.make_array(sig.args[1])(context, builder, args[1])
+        weight_view = context.make_array(sig.args[2])(context, builder, args[2])
+        target_view = context.make_array(sig.args[4])(context, builder, args[4])
+        channels = cgutils.unpack_tuple(builder, rows_view.shape, 2)[1]
+        count = context.cast(builder, args[3], sig.args[3], types.int64)
+        rows_data = builder.bitcast(rows_view.data, f32.as_pointer())
+        index_data = builder.bitcast(index_view.data, i64.as_pointer())
+        weight_data = builder.bitcast(weight_view.data, f32.as_pointer())
+        target_data = builder.bitcast(target_view.data, f32.as_pointer())
+
+        supported = builder.and_(builder.icmp_signed(">=", channels, ir.Constant(i64, 1)),
+                                 builder.icmp_signed("<=", channels, ir.Constant(i64, MAX_PERIOD_CHANNELS)))
+        entry = builder.block
+        compute = builder.append_basic_block("period.sum")
+        done = builder.append_basic_block("period.done")
+        builder.cbranch(supported, compute, done)
+
+        builder.position_at_end(compute)
+        total = None
+        for corner in range(8):
+            row = builder.load(builder.gep(index_data, [ir.Constant(i64, corner)]))
+            start = builder.gep(rows_data, [builder.mul(row, channels)])
+            values = builder.load(builder.bitcast(start, wide.as_pointer()), align=4)
+            weight = _broadcast(builder, builder.load(builder.gep(weight_data, [ir.Constant(i64, corner)])), wide)
+            product = builder.fmul(weight, values)
+            total = product if total is None else builder.fadd(total, product)
+
+        # One case per channel count: its period's shuffles are constants.
+        cases_end = builder.append_basic_block("period.cases_end")
+        switch = builder.switch(channels, cases_end)
+        periods = []
+        for b in range(1, MAX_PERIOD_CHANNELS + 1):
+            case = builder.append_basic_block(f"period.b{b}")
+            switch.add_case(ir.Constant(i64, b), case)
+            builder.position_at_end(case)
+            lanes = period_lanes(b)
+            shuffled = [builder.shuffle_vector(total, total, ir.Constant(ir.VectorType(i32, LANES),
+                                                                         [(k * LANES + j) % b for j in range(LANES)]))
+                        for k in range(lanes // LANES)]
+            # Whole periods until ``count`` is covered (at least one).
+            before = builder.block
+            loop = builder.append_basic_block(f"period.b{b}.loop")
+            builder.branch(loop)
+            builder.position_at_end(loop)
+            first = builder.phi(i64)
+            first.add_incoming(ir.Constant(i64, 0), before)
+            for k, value in enumerate(shuffled):
+                at = builder.gep(target_data, [builder.add(first, ir.Constant(i64, k * LANES))])
+                builder.store(value, builder.bitcast(at, vector.as_pointer()), align=4)
+            following = builder.add(first, ir.Constant(i64, lanes))
+            first.add_incoming(following, builder.block)
+            after = builder.append_basic_block(f"period.b{b}.after")
+            builder.cbranch(builder.icmp_signed("<", following, count), loop, after)
+            builder.position_at_end(after)
+            builder.branch(done)
+            periods.append((ir.Constant(i64, lanes), after))
+        builder.position_at_end(cases_end)  # not reached: channels is in 1 .. 16 here
+        builder.branch(done)
+
+        builder.position_at_end(done)
+        result = builder.phi(i64)
+        result.add_incoming(ir.Constant(i64, 0), entry)
+        result.add_incoming(ir.Constant(i64, 0), cases_end)
+        for value, block in periods:
+            result.add_incoming(value, block)
+        return result
 
     return signature, codegen

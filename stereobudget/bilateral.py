@@ -32,6 +32,7 @@ import numpy as np
 from numba import get_num_threads, njit, prange
 
 from ._jit import NO_REFCOUNTS
+from ._simd import MAX_PERIOD_LANES, PERIOD_READ_PAST, periodic_corner_sum
 from .cost import sparse_pair_cost
 from .scratch import empty_volume, recycle, zeroed_volume
 
@@ -233,12 +234,15 @@ def _blur_grid_band(src, dst, spatial, kernel_s, kernel_r, y_start, y_stop, slab
                 _add_tap(total, out[z * k:(z + 1) * k], np.float32(1.0), z > 0)
 
 
-def _blur_grid(grid: np.ndarray, geom: GridGeometry) -> tuple:
+def _blur_grid(grid: np.ndarray, geom: GridGeometry, *, readable_tail: int = 0) -> tuple:
     """Separable Gaussian blur of a C-contiguous float32 (GY, GX, GZ, K) grid, and the
     blurred grid summed over intensity, float32 (GY, GX, K).  ``grid`` is consumed (its
-    memory is handed to :mod:`stereobudget.scratch`)."""
+    memory is handed to :mod:`stereobudget.scratch`).  The blurred grid is followed in
+    memory by ``readable_tail`` floats (zeros)."""
     gy, gx, gz, k = grid.shape
-    out = empty_volume(grid.shape)
+    buffer = empty_volume((grid.size + readable_tail,))
+    buffer[grid.size:] = 0.0
+    out = buffer[:grid.size].reshape(grid.shape)
     spatial = np.zeros((gy, gx, k), np.float32)  # zeros: a grid without intensity cells sums to 0
     _blur_grid_rows(grid, out, spatial, _gaussian_kernel(geom.blur_s), _gaussian_kernel(geom.blur_r),
                     get_num_threads())
@@ -386,7 +390,9 @@ def _slice_grids(values, base, band, geom, *, density, missing_value, first_band
                  first_missing_layer=None):
     """Pack blurred grids into :class:`SliceGrids`: ``values``, ``base`` and ``band`` are
     :func:`_blur_grid`'s (grid, spatial sums) pairs of (GY, GX | band, GZ, C) grids
-    (``band=None``: no band; ``first_missing_layer=None``: no layer skipped)."""
+    (``band=None``: no band; ``first_missing_layer=None``: no layer skipped).  The base
+    grid must be blurred with ``readable_tail=PERIOD_READ_PAST`` (the slice's
+    :func:`stereobudget._simd.periodic_corner_sum` reads past its last cell)."""
     (grid_val, spatial_values), (base_w, spatial_base) = values, base
     gy, gx, gz, k = grid_val.shape
     n_base = base_w.shape[3]
@@ -433,11 +439,35 @@ def _tile_into(period, out, n):
 
 
 @njit(cache=True, inline="always")
-def slice_pixel(grids, guide, y, x, o, den_base, den, corner_index, band_index, corner_weight):
+def slice_scratch(num_layers):
+    """Scratch of :func:`slice_pixel` for ``num_layers`` layers: (den, corner_index, band_index, corner_weight)."""
+    return (np.empty(num_layers + MAX_PERIOD_LANES, dtype=np.float32), np.empty(8, dtype=np.int64),
+            np.empty(8, dtype=np.int64), np.empty(8, dtype=np.float32))
+
+
+@njit(cache=True, inline="always")
+def _layer_weights(base_weights, corner_index, corner_weight, n, den):
+    """``den[i]`` = the base weights sliced in layer ``i``'s channel ``i % B``, for ``i < n``
+    (and whatever fills a last period past ``n``: ``den`` holds ``n + MAX_PERIOD_LANES``).
+
+    Up to 16 channels, in vectors (:func:`stereobudget._simd.periodic_corner_sum`);
+    more (a per-layer weight grid, no repetition), as a corner sum and a tiling.
+    """
+    if n <= 0:
+        return
+    if periodic_corner_sum(base_weights, corner_index, corner_weight, n, den) == 0:
+        channels = base_weights.shape[1]
+        _add_corners_from(base_weights, corner_index, corner_weight, 0, min(channels, n), den)
+        _tile_into(den[:channels], den, n)
+
+
+@njit(cache=True, inline="always")
+def slice_pixel(grids, guide, y, x, o, den, corner_index, band_index, corner_weight):
     """Write the normalised fill of pixel (y, x) into ``o`` (K,): Eq. (3) at one pixel.
 
-    ``den_base`` (B,), ``den`` (K,), ``corner_index``/``band_index`` (8,) int64 and
-    ``corner_weight`` (8,) float32 are the caller's scratch, reused from pixel to pixel.
+    ``den`` (K + :data:`~stereobudget._simd.MAX_PERIOD_LANES`,) float32,
+    ``corner_index``/``band_index`` (8,) int64 and ``corner_weight`` (8,) float32 are the
+    caller's scratch (:func:`slice_scratch`), reused from pixel to pixel.
     """
     n_out = o.shape[0]
     y0, ty = _hat(y * grids.inv_cell_s, grids.gy)
@@ -450,23 +480,20 @@ def slice_pixel(grids, guide, y, x, o, den_base, den, corner_index, band_index, 
     # Two calls rather than one with min(live, n_out): bounded by the row's own length the
     # common case compiles as before (one call with a computed bound: Teddy's cost kernel 7 % slower).
     if live >= n_out:
-        _slice_layers(grids, y0, ty, x0, tx, z0, tz, o, n_out, den_base, den, corner_index, band_index,
-                      corner_weight)
+        _slice_layers(grids, y0, ty, x0, tx, z0, tz, o, n_out, den, corner_index, band_index, corner_weight)
     else:
-        _slice_layers(grids, y0, ty, x0, tx, z0, tz, o, live, den_base, den, corner_index, band_index,
-                      corner_weight)
+        _slice_layers(grids, y0, ty, x0, tx, z0, tz, o, live, den, corner_index, band_index, corner_weight)
         for i in range(live, n_out):
             o[i] = grids.missing_value
 
 
 @njit(cache=True, inline="always")
-def _slice_layers(grids, y0, ty, x0, tx, z0, tz, o, n, den_base, den, corner_index, band_index, corner_weight):
+def _slice_layers(grids, y0, ty, x0, tx, z0, tz, o, n, den, corner_index, band_index, corner_weight):
     """Layers ``[0, n)`` of :func:`slice_pixel` at the pixel of cell coordinates (y0, ty, x0, tx, z0, tz)."""
     _trilinear_corners(y0, ty, x0, tx, z0, tz, grids.gx, grids.gz, corner_weight, corner_index)
     _add_corners_from(grids.values, corner_index, corner_weight, 0, n, o)
-    _add_corners_from(grids.base_weights, corner_index, corner_weight, 0, den_base.shape[0], den_base)
     start = grids.first_band_layer[x0]
-    _tile_into(den_base, den, min(start, n))
+    _layer_weights(grids.base_weights, corner_index, corner_weight, min(start, n), den)
     if start < n:
         _trilinear_corners(y0, ty, x0, tx, z0, tz, grids.band, grids.gz, corner_weight, band_index)
         _add_corners_from(grids.band_weights, band_index, corner_weight, start, n, den)
@@ -480,15 +507,11 @@ def _slice_rows(grids, guide, pixel_of_row, out):
     w = guide.shape[1]
     row_count = out.shape[0]
     for chunk in prange((row_count + _CHUNK - 1) // _CHUNK):
-        den_base = np.empty(grids.base_weights.shape[1], dtype=np.float32)
-        den = np.empty(out.shape[1], dtype=np.float32)
-        corner_index = np.empty(8, dtype=np.int64)
-        band_index = np.empty(8, dtype=np.int64)
-        corner_weight = np.empty(8, dtype=np.float32)
+        den, corner_index, band_index, corner_weight = slice_scratch(out.shape[1])
         for k in range(chunk * _CHUNK, min((chunk + 1) * _CHUNK, row_count)):
             y = pixel_of_row[k] // w
             x = pixel_of_row[k] - y * w
-            slice_pixel(grids, guide, y, x, out[k], den_base, den, corner_index, band_index, corner_weight)
+            slice_pixel(grids, guide, y, x, out[k], den, corner_index, band_index, corner_weight)
     return out
 
 
@@ -829,7 +852,8 @@ def _lattice_sparse_dsi_grids(left, guide, rows, cols, right_values, right_steps
                    np.ascontiguousarray(right_steps, np.float32), left, guide, int(min_disp), np.float32(truncation),
                    int(step_spacing), np.float32(step_weight), np.float32(step_truncation), inv_cs, inv_cr, grid_val,
                    band_w, base_w, channel_of_residue, *_lattice_parts(sample_rows, inv_cs, gy, get_num_threads()))
-    return _slice_grids(_blur_grid(grid_val, geom), _blur_grid(base_w, geom), _blur_grid(band_w, geom), geom,
+    return _slice_grids(_blur_grid(grid_val, geom), _blur_grid(base_w, geom, readable_tail=PERIOD_READ_PAST),
+                        _blur_grid(band_w, geom), geom,
                         density=len(rows) / float(h * w), missing_value=truncation,
                         first_band_layer=first_band_layer, first_missing_layer=first_missing_layer)
 
@@ -866,8 +890,8 @@ def sparse_joint_bilateral(guide: np.ndarray, rows: np.ndarray, cols: np.ndarray
     grid_w = np.zeros(geom.shape + (1,), np.float32)
     _splat_points(np.asarray(rows, np.int64), np.asarray(cols, np.int64), values, guide,
                   1.0 / geom.cell_s, 1.0 / geom.cell_r, grid_val, grid_w)
-    grids = _slice_grids(_blur_grid(grid_val, geom), _blur_grid(grid_w, geom), None, geom,
-                         density=len(rows) / float(h * w), missing_value=missing_value)
+    grids = _slice_grids(_blur_grid(grid_val, geom), _blur_grid(grid_w, geom, readable_tail=PERIOD_READ_PAST), None,
+                         geom, density=len(rows) / float(h * w), missing_value=missing_value)
     volume = slice_volume(guide, grids)
     release_grids(grids)
     return volume
@@ -965,5 +989,5 @@ def sparse_dsi_grids(left: np.ndarray, guide: np.ndarray, rows: np.ndarray, cols
                             np.float32(truncation), int(step_spacing), np.float32(step_weight),
                             np.float32(step_truncation), 1.0 / geom.cell_s, 1.0 / geom.cell_r, grid_val, grid_w,
                             get_num_threads())
-    return _slice_grids(_blur_grid(grid_val, geom), _blur_grid(grid_w, geom), None, geom,
-                        density=len(rows) / float(h * w), missing_value=truncation)
+    return _slice_grids(_blur_grid(grid_val, geom), _blur_grid(grid_w, geom, readable_tail=PERIOD_READ_PAST), None,
+                        geom, density=len(rows) / float(h * w), missing_value=truncation)

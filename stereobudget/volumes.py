@@ -28,7 +28,7 @@ from numba import njit, prange
 
 from ._prefetch import prefetch_row
 from ._simd import LANES, skewed_block_copy
-from .bilateral import SliceGrids, slice_pixel
+from .bilateral import SliceGrids, slice_pixel, slice_scratch
 from .cost import dense_pixel_costs, gradient_sources, reversed_right_row
 from .scratch import empty_volume
 
@@ -113,11 +113,7 @@ def _pair_rows(left, right, left_gray, right_gray, min_disp, truncation, grad_tr
         buffer = np.empty((w + border_rows, num_disp), dtype=np.float32)
         rev = np.empty((channels + 1, span), dtype=np.float32)
         dense = np.empty(num_disp, dtype=np.float32)
-        den_base = np.empty(grids.base_weights.shape[1], dtype=np.float32)
-        den = np.empty(num_disp, dtype=np.float32)
-        corner_index = np.empty(8, dtype=np.int64)
-        band_index = np.empty(8, dtype=np.int64)
-        corner_weight = np.empty(8, dtype=np.float32)
+        den, corner_index, band_index, corner_weight = slice_scratch(num_disp)
         starts = np.empty(LANES, dtype=np.int64)
         for y in range(item * _ROWS_PER_ITEM, min((item + 1) * _ROWS_PER_ITEM, h)):
             reversed_right_row(right, right_gray, y, first_column, use_grad, rev)
@@ -132,7 +128,7 @@ def _pair_rows(left, right, left_gray, right_gray, min_disp, truncation, grad_tr
                 o = buffer[x]
                 target = left_rows[left_row_of_pixel[y * w + x]]
                 if use_grids:
-                    slice_pixel(grids, guide, y, x, o, den_base, den, corner_index, band_index, corner_weight)
+                    slice_pixel(grids, guide, y, x, o, den, corner_index, band_index, corner_weight)
                     dense_pixel_costs(left, left_gray, y, x, rev, min_disp, first_column, truncation,
                                       grad_truncation, grad_weight, dense)
                     for i in range(num_disp):  # the mix stored to the buffer and the volume in one loop

@@ -24,7 +24,8 @@ def _inputs(scene, pattern):
 
 
 @pytest.mark.parametrize("stride, offset_x, offset_y, min_disp, num_disp, steps", [
-    (5, 0, 0, 0, 25, True), (4, 3, 1, 0, 25, False), (3, 1, 2, 6, 19, True), (6, 5, 0, 2, 13, False)])
+    (5, 0, 0, 0, 25, True), (4, 3, 1, 0, 25, False), (3, 1, 2, 6, 19, True), (6, 5, 0, 2, 13, False),
+    (17, 2, 0, 0, 40, False)])  # more base channels than the vector slice takes: summed, then tiled
 def test_split_weights_are_bit_identical(scene, monkeypatch, stride, offset_x, offset_y, min_disp, num_disp, steps):
     pattern = SamplingPattern("grid", stride, stride, offset_x, offset_y)
     left, guide, rows, cols, values, samples = _inputs(scene, pattern)

@@ -4,7 +4,9 @@ import numpy as np
 import pytest
 from numba import njit
 
-from stereobudget._simd import MIN_VECTOR_LENGTH, blend_rows_first_min, first_min, skewed_block_copy
+from stereobudget._simd import (MAX_PERIOD_CHANNELS, MAX_PERIOD_LANES, MIN_VECTOR_LENGTH, PERIOD_READ_PAST,
+                                blend_rows_first_min, first_min, period_lanes, periodic_corner_sum,
+                                skewed_block_copy)
 
 
 @njit(cache=True)
@@ -98,3 +100,45 @@ def test_blend_rows_first_min_is_the_blend_then_the_first_minimum(layers, compet
     _blend_all(rows, aboves, similarities, competing, best)
     np.testing.assert_array_equal(rows, expected_rows)
     assert best.tolist() == [_scan(row[:competing]) for row in expected_rows]
+
+
+@njit(cache=True)
+def _periodic_corner_sum(rows, corner_index, corner_weight, count, target):
+    return periodic_corner_sum(rows, corner_index, corner_weight, count, target)
+
+
+@njit(cache=True)
+def _scalar_corner_sum(rows, corner_index, corner_weight, out):
+    """The slice's loop: the 8 corner rows' weighted sum per channel, corners in order."""
+    for i in range(rows.shape[1]):
+        total = corner_weight[0] * rows[corner_index[0], i]
+        for c in range(1, 8):
+            total += corner_weight[c] * rows[corner_index[c], i]
+        out[i] = total
+
+
+@pytest.mark.parametrize("channels", range(1, MAX_PERIOD_CHANNELS + 4))
+def test_periodic_corner_sum_is_the_corner_sum_repeated(channels):
+    rng = np.random.default_rng(channels)
+    cells = 29
+    # The rows are followed by the readable floats the loads need, NaN here: never used.
+    memory = np.full(cells * channels + PERIOD_READ_PAST, np.nan, np.float32)
+    rows = memory[:cells * channels].reshape(cells, channels)
+    rows[:] = rng.random(rows.shape, dtype=np.float32) * 1000
+    period = period_lanes(channels)
+    assert period % 8 == 0 and period % channels == 0
+    for count in (1, channels, 8, 61, 64, 200):
+        corner_index = rng.integers(0, cells, 8).astype(np.int64)
+        corner_index[rng.integers(8)] = cells - 1  # the last row: its loads read the tail
+        corner_weight = rng.random(8, dtype=np.float32)
+        target = np.full(count + MAX_PERIOD_LANES, -1.0, np.float32)
+        written = _periodic_corner_sum(rows, corner_index, corner_weight, count, target)
+        if channels > MAX_PERIOD_CHANNELS:
+            assert written == 0 and np.all(target == -1.0)  # the caller's scalar path
+            continue
+        sums = np.empty(channels, np.float32)
+        _scalar_corner_sum(rows, corner_index, corner_weight, sums)
+        assert written == period <= MAX_PERIOD_LANES
+        whole = -(-count // period) * period
+        np.testing.assert_array_equal(target[:whole], sums[np.arange(whole) % channels])
+        assert np.all(target[whole:] == -1.0)
