@@ -65,12 +65,17 @@ def _broadcast(builder, scalar, vector_type):
                                                               [0] * vector_type.count))
 
 
+def _is_array(value, ndim, dtype=types.float32):
+    """Whether the numba type ``value`` is a C-contiguous ``ndim``-D array of ``dtype``
+    (the intrinsics address their elements from the data pointer)."""
+    return isinstance(value, types.Array) and value.ndim == ndim and value.dtype == dtype and value.layout == "C"
+
+
 @intrinsic
 def _first_min_vector(typingctx, array):
     """Index of the first minimum of a C-contiguous float32 row of >= 16 elements whose
     first element is not NaN (NaN elements never win, as in the scalar scan)."""
-    if not (isinstance(array, types.Array) and array.ndim == 1 and array.dtype == types.float32
-            and array.layout == "C"):
+    if not _is_array(array, 1):
         return None
     signature = types.int64(array)
 
@@ -185,14 +190,8 @@ def skewed_block_copy(typingctx, source, source_start, row_length, target, targe
     ``target`` are C-contiguous 1-D float32 arrays and ``target_starts`` 8 int64; no index
     is checked.
     """
-    float_row = isinstance(source, types.Array) and source.ndim == 1 and source.dtype == types.float32 \
-        and source.layout == "C"
-    float_target = isinstance(target, types.Array) and target.ndim == 1 and target.dtype == types.float32 \
-        and target.layout == "C"
-    starts = isinstance(target_starts, types.Array) and target_starts.ndim == 1 \
-        and target_starts.dtype == types.int64
-    if not (float_row and float_target and starts and isinstance(source_start, types.Integer)
-            and isinstance(row_length, types.Integer)):
+    if not (_is_array(source, 1) and _is_array(target, 1) and _is_array(target_starts, 1, types.int64)
+            and isinstance(source_start, types.Integer) and isinstance(row_length, types.Integer)):
         return None
     signature = types.void(source, source_start, row_length, target, target_starts)
 
@@ -237,11 +236,7 @@ def blend_rows_first_min(typingctx, row, above, similarity, keep, competing):
     ``1 <= competing <= len(row)``.  The blend is the scalar loop's arithmetic (two
     products and a sum, each rounded to float32), bit for bit.
     """
-    def is_row(array):
-        return (isinstance(array, types.Array) and array.ndim == 1 and array.dtype == types.float32
-                and array.layout == "C")
-
-    if not (is_row(row) and is_row(above) and similarity == types.float32 and keep == types.float32
+    if not (_is_array(row, 1) and _is_array(above, 1) and similarity == types.float32 and keep == types.float32
             and isinstance(competing, types.Integer)):
         return None
     signature = types.int64(row, above, similarity, keep, competing)
@@ -360,17 +355,14 @@ def periodic_corner_sum(typingctx, rows, corner_index, corner_weight, count, tar
     (corner order, each product and sum rounded to float32: the scalar loop's sum, bit
     for bit), and every output vector is a shuffle of the sum, stored whole.
 
+    ``corner_index`` (8,) int64 and ``corner_weight`` (8,) float32 are C-contiguous;
     ``rows`` (cells, B) float32 C-contiguous must be followed in memory by
     :data:`PERIOD_READ_PAST` readable floats (the loads read past a row's B channels;
     those lanes are never used), and ``target`` must hold ``count`` rounded up to a
     multiple of ``lcm(B, 8)`` floats.  No index is checked.
     """
-    if not (isinstance(rows, types.Array) and rows.ndim == 2 and rows.dtype == types.float32
-            and rows.layout == "C" and isinstance(corner_index, types.Array) and corner_index.ndim == 1
-            and corner_index.dtype == types.int64 and isinstance(corner_weight, types.Array)
-            and corner_weight.ndim == 1 and corner_weight.dtype == types.float32
-            and isinstance(count, types.Integer) and isinstance(target, types.Array) and target.ndim == 1
-            and target.dtype == types.float32 and target.layout == "C"):
+    if not (_is_array(rows, 2) and _is_array(corner_index, 1, types.int64) and _is_array(corner_weight, 1)
+            and isinstance(count, types.Integer) and _is_array(target, 1)):
         return None
     signature = types.int64(rows, corner_index, corner_weight, count, target)
 
