@@ -234,20 +234,28 @@ def _blur_grid_band(src, dst, spatial, kernel_s, kernel_r, y_start, y_stop, slab
                 _add_tap(total, out[z * k:(z + 1) * k], np.float32(1.0), z > 0)
 
 
-def _blur_grid(grid: np.ndarray, geom: GridGeometry, *, readable_tail: int = 0) -> tuple:
+def _blur_grid(grid: np.ndarray, geom: GridGeometry, *, extra_cells: int = 0) -> tuple:
     """Separable Gaussian blur of a C-contiguous float32 (GY, GX, GZ, K) grid, and the
     blurred grid summed over intensity, float32 (GY, GX, K).  ``grid`` is consumed (its
-    memory is handed to :mod:`stereobudget.scratch`).  The blurred grid is followed in
-    memory by ``readable_tail`` floats (zeros)."""
+    memory is handed to :mod:`stereobudget.scratch`).  With ``extra_cells`` the blurred
+    grid comes as (GY * GX * GZ + extra_cells, K) rows of cells, the extra ones zero."""
     gy, gx, gz, k = grid.shape
-    buffer = empty_volume((grid.size + readable_tail,))
-    buffer[grid.size:] = 0.0
-    out = buffer[:grid.size].reshape(grid.shape)
+    cells = gy * gx * gz
+    rows = empty_volume((cells + extra_cells, k))
+    rows[cells:] = 0.0
+    out = rows[:cells].reshape(grid.shape)
     spatial = np.zeros((gy, gx, k), np.float32)  # zeros: a grid without intensity cells sums to 0
     _blur_grid_rows(grid, out, spatial, _gaussian_kernel(geom.blur_s), _gaussian_kernel(geom.blur_r),
                     get_num_threads())
     recycle(grid)
-    return out, spatial
+    return (rows if extra_cells else out), spatial
+
+
+def _blur_base_grid(grid: np.ndarray, geom: GridGeometry) -> tuple:
+    """:func:`_blur_grid` of a weight grid as :class:`SliceGrids` keeps it: cell rows
+    followed by zero cells of at least :data:`~stereobudget._simd.PERIOD_READ_PAST`
+    floats, which the slice's vector loads read past the last cell."""
+    return _blur_grid(grid, geom, extra_cells=-(-PERIOD_READ_PAST // grid.shape[3]))
 
 
 @njit(cache=True, inline="always")
@@ -351,8 +359,9 @@ class SliceGrids(NamedTuple):
     ----------
     values : ndarray, float32 (GY * GX * GZ, K)
         Signal grid, one row of K channels per cell.
-    base_weights : ndarray, float32 (GY * GX * GZ, B)
-        Weight (mask) grid channels shared by layers: ``layer_base[i]`` picks layer i's.
+    base_weights : ndarray, float32 (GY * GX * GZ + E, B)
+        Weight (mask) grid channels shared by layers: ``layer_base[i]`` picks layer i's;
+        the E last rows are zero, read past by the slice's vector loads.
     band_weights : ndarray, float32 (GY * band * GZ, K)
         Per-layer weights of the cells in the first ``band`` x-cells (may be empty).
     spatial_values, spatial_base, spatial_band : ndarray, float32 (GY, GX | band, K | B)
@@ -390,12 +399,13 @@ def _slice_grids(values, base, band, geom, *, density, missing_value, first_band
                  first_missing_layer=None):
     """Pack blurred grids into :class:`SliceGrids`: ``values``, ``base`` and ``band`` are
     :func:`_blur_grid`'s (grid, spatial sums) pairs of (GY, GX | band, GZ, C) grids
-    (``band=None``: no band; ``first_missing_layer=None``: no layer skipped).  The base
-    grid must be blurred with ``readable_tail=PERIOD_READ_PAST`` (the slice's
-    :func:`stereobudget._simd.periodic_corner_sum` reads past its last cell)."""
+    (``band=None``: no band; ``first_missing_layer=None``: no layer skipped); the base
+    grid's are :func:`_blur_base_grid`'s (cells, B) rows."""
     (grid_val, spatial_values), (base_w, spatial_base) = values, base
     gy, gx, gz, k = grid_val.shape
-    n_base = base_w.shape[3]
+    if base_w.ndim != 2 or (base_w.shape[0] - gy * gx * gz) * base_w.shape[1] < PERIOD_READ_PAST:
+        raise ValueError("the base weights need the zero cells of _blur_base_grid")
+    n_base = base_w.shape[1]
     if band is None:
         band = np.zeros((gy, 0, gz, k), np.float32), np.zeros((gy, 0, k), np.float32)
         first_band_layer = np.full(gx, k, np.int64)
@@ -407,7 +417,7 @@ def _slice_grids(values, base, band, geom, *, density, missing_value, first_band
     # intensity nearby (typical weight is ~ density * cell_s^2).
     eps = np.float32(1e-4 * density * geom.cell_s ** 2)
     return SliceGrids(
-        values=grid_val.reshape(gy * gx * gz, k), base_weights=base_w.reshape(gy * gx * gz, n_base),
+        values=grid_val.reshape(gy * gx * gz, k), base_weights=base_w,
         band_weights=band_w.reshape(gy * band * gz, k),
         spatial_values=spatial_values, spatial_base=spatial_base, spatial_band=spatial_band,
         first_band_layer=np.asarray(first_band_layer, np.int64),
@@ -852,8 +862,7 @@ def _lattice_sparse_dsi_grids(left, guide, rows, cols, right_values, right_steps
                    np.ascontiguousarray(right_steps, np.float32), left, guide, int(min_disp), np.float32(truncation),
                    int(step_spacing), np.float32(step_weight), np.float32(step_truncation), inv_cs, inv_cr, grid_val,
                    band_w, base_w, channel_of_residue, *_lattice_parts(sample_rows, inv_cs, gy, get_num_threads()))
-    return _slice_grids(_blur_grid(grid_val, geom), _blur_grid(base_w, geom, readable_tail=PERIOD_READ_PAST),
-                        _blur_grid(band_w, geom), geom,
+    return _slice_grids(_blur_grid(grid_val, geom), _blur_base_grid(base_w, geom), _blur_grid(band_w, geom), geom,
                         density=len(rows) / float(h * w), missing_value=truncation,
                         first_band_layer=first_band_layer, first_missing_layer=first_missing_layer)
 
@@ -890,8 +899,8 @@ def sparse_joint_bilateral(guide: np.ndarray, rows: np.ndarray, cols: np.ndarray
     grid_w = np.zeros(geom.shape + (1,), np.float32)
     _splat_points(np.asarray(rows, np.int64), np.asarray(cols, np.int64), values, guide,
                   1.0 / geom.cell_s, 1.0 / geom.cell_r, grid_val, grid_w)
-    grids = _slice_grids(_blur_grid(grid_val, geom), _blur_grid(grid_w, geom, readable_tail=PERIOD_READ_PAST), None,
-                         geom, density=len(rows) / float(h * w), missing_value=missing_value)
+    grids = _slice_grids(_blur_grid(grid_val, geom), _blur_base_grid(grid_w, geom), None, geom,
+                         density=len(rows) / float(h * w), missing_value=missing_value)
     volume = slice_volume(guide, grids)
     release_grids(grids)
     return volume
@@ -989,5 +998,5 @@ def sparse_dsi_grids(left: np.ndarray, guide: np.ndarray, rows: np.ndarray, cols
                             np.float32(truncation), int(step_spacing), np.float32(step_weight),
                             np.float32(step_truncation), 1.0 / geom.cell_s, 1.0 / geom.cell_r, grid_val, grid_w,
                             get_num_threads())
-    return _slice_grids(_blur_grid(grid_val, geom), _blur_grid(grid_w, geom, readable_tail=PERIOD_READ_PAST), None,
-                        geom, density=len(rows) / float(h * w), missing_value=truncation)
+    return _slice_grids(_blur_grid(grid_val, geom), _blur_base_grid(grid_w, geom), None, geom,
+                        density=len(rows) / float(h * w), missing_value=truncation)

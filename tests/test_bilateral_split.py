@@ -169,3 +169,22 @@ def test_lattice_parts_keep_shared_cells_between_neighbours():
         assert shared[0] == -1 and list(shared[1:]) == [cells[b - 1] + 1 for b in bounds[1:-1]]
     bounds, shared = bilateral._lattice_parts(sample_rows[:3], 0.1, 9, 2)
     assert list(bounds) == [0, 3] and list(shared) == [-1]   # too short to split: one part
+
+
+def test_base_weights_end_in_zero_cells_and_are_reused_by_the_next_fill(scene):
+    # The slice's vector loads read past the last cell's channels: the grid carries zero
+    # cells for them, and is handed back whole, so the next fill of the frame takes it again.
+    pattern = SamplingPattern("grid", 5, 5, 0, 0)
+    left, guide, rows, cols, values, _ = _inputs(scene, pattern)
+    kwargs = dict(min_disp=0, num_disp=25, sigma_s=10.0, sigma_r=15.0, truncation=15.0)
+    grids = bilateral.sparse_dsi_grids(left, guide, rows, cols, values, **kwargs)
+    cells = grids.gy * grids.gx * grids.gz
+    channels = grids.base_weights.shape[1]
+    assert channels == 5
+    assert (grids.base_weights.shape[0] - cells) * channels >= bilateral.PERIOD_READ_PAST
+    assert np.all(grids.base_weights[cells:] == 0)
+    address = grids.base_weights.ctypes.data
+    bilateral.release_grids(grids)
+    again = bilateral.sparse_dsi_grids(left, guide, rows, cols, values, **kwargs)
+    assert again.base_weights.ctypes.data == address
+    bilateral.release_grids(again)
