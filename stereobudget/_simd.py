@@ -71,6 +71,35 @@ def _is_array(value, ndim, dtype=types.float32):
     return isinstance(value, types.Array) and value.ndim == ndim and value.dtype == dtype and value.layout == "C"
 
 
+def _counted_loop(builder, name, first, stop, state, body):
+    """``for k in range(first, stop): state = body(k, *state)`` as IR (i64 ``k``); returns the final state."""
+    i64 = ir.IntType(64)
+    entry = builder.block
+    loop = builder.append_basic_block(name + ".loop")
+    done = builder.append_basic_block(name + ".done")
+    builder.cbranch(builder.icmp_signed("<", first, stop), loop, done)
+    builder.position_at_end(loop)
+    counter = builder.phi(i64)
+    current = [builder.phi(value.type) for value in state]
+    following = body(counter, *current)
+    next_counter = builder.add(counter, ir.Constant(i64, 1))
+    loop_end = builder.block
+    counter.add_incoming(first, entry)
+    counter.add_incoming(next_counter, loop_end)
+    for phi, initial, value in zip(current, state, following):
+        phi.add_incoming(initial, entry)
+        phi.add_incoming(value, loop_end)
+    builder.cbranch(builder.icmp_signed("<", next_counter, stop), loop, done)
+    builder.position_at_end(done)
+    final = []
+    for initial, value in zip(state, following):
+        phi = builder.phi(initial.type)
+        phi.add_incoming(initial, entry)
+        phi.add_incoming(value, loop_end)
+        final.append(phi)
+    return final
+
+
 @intrinsic
 def _first_min_vector(typingctx, array):
     """Index of the first minimum of a C-contiguous float32 row of >= 16 elements whose
@@ -274,33 +303,6 @@ def blend_rows_first_min(typingctx, row, above, similarity, keep, competing):
                 smaller = builder.and_(smaller, builder.icmp_signed("<", block_indices, limit))
             return builder.select(smaller, values, best), builder.select(smaller, block_indices, best_index)
 
-        def counted_loop(name, first, stop, state, body):
-            """``for k in range(first, stop): state = body(k, *state)``; returns the final state."""
-            entry = builder.block
-            loop = builder.append_basic_block(name + ".loop")
-            done = builder.append_basic_block(name + ".done")
-            builder.cbranch(builder.icmp_signed("<", first, stop), loop, done)
-            builder.position_at_end(loop)
-            counter = builder.phi(i64)
-            current = [builder.phi(value.type) for value in state]
-            following = body(counter, *current)
-            next_counter = builder.add(counter, ir.Constant(i64, 1))
-            loop_end = builder.block
-            counter.add_incoming(first, entry)
-            counter.add_incoming(next_counter, loop_end)
-            for phi, initial, value in zip(current, state, following):
-                phi.add_incoming(initial, entry)
-                phi.add_incoming(value, loop_end)
-            builder.cbranch(builder.icmp_signed("<", next_counter, stop), loop, done)
-            builder.position_at_end(done)
-            final = []
-            for initial, value in zip(state, following):
-                phi = builder.phi(initial.type)
-                phi.add_incoming(initial, entry)
-                phi.add_incoming(value, loop_end)
-                final.append(phi)
-            return final
-
         blocks = builder.sdiv(length, lanes)
         # Blocks whose lanes all compete go in pairs to two accumulators, A and B (two
         # independent chains of compares); the rest, with the padding mask, to A.  Each
@@ -315,8 +317,8 @@ def blend_rows_first_min(typingctx, row, above, similarity, keep, competing):
             b, b_index = block(builder.add(first, ir.Constant(i64, 1)), b, b_index, False)
             return a, a_index, b, b_index
 
-        a, a_index, b, b_index = counted_loop("blend.pairs", ir.Constant(i64, 0), pairs, start, pair_body)
-        a, a_index = counted_loop("blend.rest", builder.mul(pairs, ir.Constant(i64, 2)), blocks, (a, a_index),
+        a, a_index, b, b_index = _counted_loop(builder, "blend.pairs", ir.Constant(i64, 0), pairs, start, pair_body)
+        a, a_index = _counted_loop(builder, "blend.rest", builder.mul(pairs, ir.Constant(i64, 2)), blocks, (a, a_index),
                                   lambda counter, best, best_index: block(counter, best, best_index, True))
         # Lanes that never saw a usable value hold (+inf, lane number): an all-+inf row
         # still ties to index 0, as in the scalar scan.
@@ -397,6 +399,7 @@ def periodic_corner_sum(typingctx, rows, corner_index, corner_weight, count, tar
             product = builder.fmul(weight, values)
             total = product if total is None else builder.fadd(total, product)
 
+        one = ir.Constant(i64, 1)
         # One case per channel count: its period's shuffles are constants.
         cases_end = builder.append_basic_block("period.cases_end")
         switch = builder.switch(channels, cases_end)
@@ -410,22 +413,19 @@ def periodic_corner_sum(typingctx, rows, corner_index, corner_weight, count, tar
                                                                          [(k * LANES + j) % b for j in range(LANES)]))
                         for k in range(lanes // LANES)]
             # Whole periods until ``count`` is covered (at least one).
-            before = builder.block
-            loop = builder.append_basic_block(f"period.b{b}.loop")
-            builder.branch(loop)
-            builder.position_at_end(loop)
-            first = builder.phi(i64)
-            first.add_incoming(ir.Constant(i64, 0), before)
-            for k, value in enumerate(shuffled):
-                at = builder.gep(target_data, [builder.add(first, ir.Constant(i64, k * LANES))])
-                builder.store(value, builder.bitcast(at, vector.as_pointer()), align=4)
-            following = builder.add(first, ir.Constant(i64, lanes))
-            first.add_incoming(following, builder.block)
-            after = builder.append_basic_block(f"period.b{b}.after")
-            builder.cbranch(builder.icmp_signed("<", following, count), loop, after)
-            builder.position_at_end(after)
+            whole = builder.sdiv(builder.add(count, ir.Constant(i64, lanes - 1)), ir.Constant(i64, lanes))
+            whole = builder.select(builder.icmp_signed("<", whole, one), one, whole)
+
+            def store_period(period, shuffled=shuffled, lanes=lanes):
+                first = builder.mul(period, ir.Constant(i64, lanes))
+                for k, value in enumerate(shuffled):
+                    at = builder.gep(target_data, [builder.add(first, ir.Constant(i64, k * LANES))])
+                    builder.store(value, builder.bitcast(at, vector.as_pointer()), align=4)
+                return ()
+
+            _counted_loop(builder, f"period.b{b}", ir.Constant(i64, 0), whole, (), store_period)
+            periods.append((ir.Constant(i64, lanes), builder.block))
             builder.branch(done)
-            periods.append((ir.Constant(i64, lanes), after))
         builder.position_at_end(cases_end)  # not reached: channels is in 1 .. 16 here
         builder.branch(done)
 
