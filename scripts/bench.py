@@ -18,8 +18,10 @@ Sections (each timed in this one run, so the ratios compare like with like):
    (3) rounds, each timing every point in a fresh subprocess (even rounds forward, odd
    ones backward, so a drift of the machine's speed falls on all points alike); each
    subprocess decodes once at the point's size (reported apart: it also pays for the
-   host backing new memory) before the timed decode from fresh memory.  Points whose memory estimate exceeds ``--budget`` (8 GiB) run
-   tiled under that budget and are marked so.
+   host backing new memory) before the timed decode from fresh memory, and then decodes
+   again on the volumes that one left (what a batch's later frames run on: the decoder's
+   own cost, without the host's price for new memory).  Points whose memory estimate
+   exceeds ``--budget`` (8 GiB) run tiled under that budget and are marked so.
 4. Command line: the process wall time of a single-shot ``sb-decode`` on Teddy with a
    warm numba cache (what a cron job pays per call), and of ``sb-encode --raw``, which
    must not import numpy, numba or OpenCV (checked).  ``--cli-env VENV`` times the
@@ -407,9 +409,17 @@ for _ in range(repeats):
     c, t = time.process_time(), time.perf_counter()
     res = decode(left, samples, max_disp=nd - 1, method=method, max_memory=budget)
     times.append(time.perf_counter() - t); cpus.append(time.process_time() - c)
+# Then the same decodes on the volumes the last one left (scratch keeps them): what every
+# frame of a batch after its first runs on, with no new memory for the host to back.
+reused_times, reused_cpus = [], []
+for _ in range(repeats):
+    c, t = time.process_time(), time.perf_counter()
+    decode(left, samples, max_disp=nd - 1, method=method, max_memory=budget)
+    reused_times.append(time.perf_counter() - t); reused_cpus.append(time.process_time() - c)
 peak = rss("VmHWM:") if reset else resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024
-print(json.dumps({"wall": sorted(times)[len(times) // 2], "cpu": sorted(cpus)[len(cpus) // 2],
-                  "first_wall": first_wall, "first_cpu": first_cpu,
+med = lambda values: sorted(values)[len(values) // 2]
+print(json.dumps({"wall": med(times), "cpu": med(cpus), "reused_wall": med(reused_times),
+                  "reused_cpu": med(reused_cpus), "first_wall": first_wall, "first_cpu": first_cpu,
                   "peak": peak, "base": base, "tile_rows": tiles, "reset": reset}))
 """
 
@@ -452,6 +462,9 @@ def scaling(*, sizes, disparities, methods, budget: int, repeats: int, per_point
         point["cpu_ns_per_nd"] = point["cpu"] / pixels_layers * 1e9
         point["cpu_ns_per_nd_runs"] = [run["cpu"] / pixels_layers * 1e9 for run in good]
         point["first_cpu_ns_per_nd"] = _median([run["first_cpu"] for run in good]) / pixels_layers * 1e9
+        point["reused_cpu_ns_per_nd"] = _median([run["reused_cpu"] for run in good]) / pixels_layers * 1e9
+        point["reused_cpu_ns_per_nd_runs"] = [run["reused_cpu"] / pixels_layers * 1e9 for run in good]
+        point["reused_ns_per_nd"] = _median([run["reused_wall"] for run in good]) / pixels_layers * 1e9
     return points
 
 
@@ -459,21 +472,24 @@ def scaling_report(rows: list[dict], budget: int) -> list[str]:
     rounds = max((len(p.get("runs", [])) for p in rows), default=1)
     lines = [f"### Scaling (synthetic smooth texture, stride 5; {rounds} round(s) of one fresh process per "
              "point, the rounds in alternating order; in each process a first decode at the point's size, "
-             "then the timed one from fresh memory; medians over the rounds)", "",
+             "then the timed one from fresh memory, then one on the volumes it left (a batch's later "
+             "frames); medians over the rounds)", "",
              "| method | size | disparities | wall s | ns / (px·disp), wall | CPU | CPU, the rounds | "
-             "CPU, first decode | peak RSS | est. | note |",
-             "|---|---|---:|---:|---:|---:|---|---:|---:|---:|---|"]
+             "CPU, first decode | reused volumes: wall, CPU | CPU reused, the rounds | peak RSS | est. | note |",
+             "|---|---|---:|---:|---:|---:|---|---:|---:|---|---:|---:|---|"]
     for p in rows:
         size = f"{p['w']}x{p['h']} ({p['mp']:g} MP)"
         if "error" in p:
-            lines.append(f"| {p['method']} | {size} | {p['nd']} | – | – | – | – | – | – | "
+            lines.append(f"| {p['method']} | {size} | {p['nd']} | – | – | – | – | – | – | – | – | "
                          f"{p['estimate'] / GIB:.1f} GiB | failed: {p['error']} |")
             continue
         note = f"tiled, bands of {p['tile_rows']} rows (budget {budget / GIB:.0f} GiB)" if p.get("tile_rows") else ""
         spread = ", ".join(f"{v:.1f}" for v in p.get("cpu_ns_per_nd_runs", []))
+        reused_spread = ", ".join(f"{v:.1f}" for v in p.get("reused_cpu_ns_per_nd_runs", []))
         lines.append(f"| {p['method']} | {size} | {p['nd']} | {p['wall']:.2f} | {p['ns_per_nd']:.1f} | "
                      f"{p['cpu_ns_per_nd']:.1f} | {spread} | {p.get('first_cpu_ns_per_nd', float('nan')):.1f} | "
-                     f"{p['peak'] / GIB:.2f} GiB | {p['estimate'] / GIB:.1f} GiB | {note} |")
+                     f"{p.get('reused_ns_per_nd', float('nan')):.1f}, {p.get('reused_cpu_ns_per_nd', float('nan')):.1f} | "
+                     f"{reused_spread} | {p['peak'] / GIB:.2f} GiB | {p['estimate'] / GIB:.1f} GiB | {note} |")
     for method in sorted({p["method"] for p in rows}):
         for key, label in (("ns_per_nd", "wall"), ("cpu_ns_per_nd", "CPU")):
             values = [p[key] for p in rows if p["method"] == method and key in p and not p.get("tile_rows")]
@@ -484,8 +500,11 @@ def scaling_report(rows: list[dict], budget: int) -> list[str]:
                              f"({100 * (min(values) / mid - 1):+.0f} % / {100 * (max(values) / mid - 1):+.0f} % "
                              f"around the median {mid:.1f}).")
     # The target's reading: at a fixed number of disparities, from the smallest to the largest frame;
-    # then the same for the processes' first decodes (which carry the host's memory backing).
-    for key, what in (("cpu_ns_per_nd", "CPU ns/(px·disp)"), ("first_cpu_ns_per_nd", "first decode, CPU ns/(px·disp)")):
+    # then the same on reused volumes (a batch's later frames: no new memory) and for the
+    # processes' first decodes (which carry the host's memory backing).
+    for key, what in (("cpu_ns_per_nd", "CPU ns/(px·disp)"),
+                      ("reused_cpu_ns_per_nd", "reused volumes, CPU ns/(px·disp)"),
+                      ("first_cpu_ns_per_nd", "first decode, CPU ns/(px·disp)")):
         for method in sorted({p["method"] for p in rows}):
             for nd in sorted({p["nd"] for p in rows if p["method"] == method}):
                 points = [p for p in rows if p["method"] == method and p["nd"] == nd and key in p]
