@@ -397,6 +397,16 @@ def decode(left: np.ndarray, samples: SampleSet, *, max_disp: int, min_disp: int
     if tile_rows and tile_rows < samples.height:
         return decode_tiled(left, samples, max_disp=max_disp, min_disp=min_disp, method=method, params=params,
                             max_memory=max_memory, tile_rows=tile_rows, overlap=overlap)
+    # Another frame size (or anything else that sizes the volumes) than the last decode's:
+    # the large spare volumes of that one are dropped (scratch.frame).
+    with scratch.frame((samples.height, samples.width, samples.pattern, int(max_disp - min_disp + 1), method,
+                        params)):
+        return _decode_whole_frame(left, samples, max_disp=max_disp, min_disp=min_disp, method=method,
+                                   params=params, max_memory=max_memory)
+
+
+def _decode_whole_frame(left, samples, *, max_disp, min_disp, method, params, max_memory):
+    """:func:`decode` of a frame (or band) in one piece, after its checks and the tiling decision."""
     from .limits import check_decode_memory
     check_decode_memory(samples.height, samples.width, int(max_disp - min_disp + 1),
                         "downsample" if samples.pattern.kind == "downsample" else method,

@@ -5,10 +5,11 @@ The first write to a fresh float32 volume page-faults: the kernel maps and zeroe
 Hybrid decode writes two (plus ~20 MB of bilateral grids).  Decodes that follow each other in one process (a batch of
 frames, a dask worker, an embedding application) give their cost volumes back here when
 they are done, and the next decode of the same size takes them instead of new memory.
-Volumes of up to :data:`SPARE_BYTES` in all are kept whatever their size; larger ones
+Volumes of up to :data:`SPARE_BYTES` in all are kept whatever their size (the largest
+first when they do not all fit); larger ones
 (frames of a megapixel and more, the bands of a tiled decode) are kept too, until a
-large volume of another size is asked for (another frame size: they are dropped before
-it is allocated, so stale volumes are never held beside new ones).  New memory costs
+decode of another frame size begins (:func:`frame`: they are dropped before its volumes
+are allocated, so stale volumes are never held beside new ones).  New memory costs
 the most there: 1-4 MP decodes took 9-35 % less CPU time on reused volumes
 (docs/performance.md, ninth session).  :func:`spare_bytes` tells the memory check what
 is held; :func:`release` drops everything.  A single decode in a fresh process (one
@@ -20,6 +21,7 @@ kept mapped by the C allocator instead (:func:`keep_freed_memory`).
 
 from __future__ import annotations
 
+import contextlib
 import ctypes
 import os
 import sys
@@ -30,13 +32,15 @@ import numpy as np
 from ._parallel import fill_zero
 
 #: Small spare volumes (each at most this many bytes) are kept between decodes up to this
-#: total, the oldest going first; a larger volume is a "large" spare, kept until a large
-#: volume of another size is asked for.
+#: total, the largest first (:func:`_fitting_spares`); a larger volume is a "large" spare, kept for the next
+#: decode of the same frame (:func:`frame`).
 SPARE_BYTES = 256 * 2 ** 20
 
 _lock = threading.Lock()
 _spare: list = []       # volumes of up to SPARE_BYTES each, at most SPARE_BYTES in all, oldest first
-_large: list = []       # larger volumes, of the frame size decoded last
+_spare_frame: list = []  # the frame count (_frame_key[2]) when each of _spare was given back
+_large: list = []       # larger volumes, of the frame decoded last
+_frame_key: list = [None, 0, 0]   # the last frame's key; decodes running (in frame()); frames begun
 _malloc_tuned: list = []
 
 # glibc's mallopt parameters (malloc.h) and the largest mmap threshold it accepts on 64-bit.
@@ -122,16 +126,45 @@ def _line_aligned_empty(size: int) -> np.ndarray:
 def _take_spare(size: int):
     """The spare volume of ``size`` float32 values, or None; call with the lock held.
 
-    A large request that no spare matches comes from a decode of another frame size:
-    the large spares (of the old size) are dropped before the new volume is allocated.
+    Outside a decode (:func:`frame`), a large request that no spare matches is taken to
+    come from another frame size: the large spares are dropped before the new volume is
+    allocated.  Within one, the frame is known to be the spares' own, and a miss only
+    means the decode needs more volumes of a size than were given back.
     """
-    for kept in (_spare, _large):
-        for i, spare in enumerate(kept):
-            if spare.size == size:
-                return kept.pop(i)
-    if 4 * size > SPARE_BYTES:
+    for i, spare in enumerate(_spare):
+        if spare.size == size:
+            _spare_frame.pop(i)
+            return _spare.pop(i)
+    for i, spare in enumerate(_large):
+        if spare.size == size:
+            return _large.pop(i)
+    if 4 * size > SPARE_BYTES and not _frame_key[1]:
         _large.clear()
     return None
+
+
+@contextlib.contextmanager
+def frame(key):
+    """Mark a decode of the frame ``key`` (anything comparable that fixes its volumes' sizes).
+
+    A key other than the previous decode's drops the large spares first: they are of
+    another frame size, and must not be held beside its new volumes.  Within the block
+    a large miss drops nothing.  (Guessing the frame from the misses alone failed when a
+    decode asks for two large volumes of one size and one is spare: a 4 MP x 128 Sparse
+    decode asks for two 374 MiB grids, and the second request dropped the 1.9 GiB cost
+    volume, allocated anew by every decode of the batch.)
+    """
+    with _lock:
+        if _frame_key[0] != key:
+            _large.clear()
+            _frame_key[2] += 1
+        _frame_key[0] = key
+        _frame_key[1] += 1
+    try:
+        yield
+    finally:
+        with _lock:
+            _frame_key[1] -= 1
 
 
 def zeroed_volume(shape) -> np.ndarray:
@@ -149,7 +182,7 @@ def recycle(*volumes) -> None:
     """Give volumes back for later decodes; the caller must not touch them afterwards.
 
     ``None`` entries are ignored.  Volumes of up to :data:`SPARE_BYTES` are kept within
-    that total (the oldest go first); larger ones are kept unless
+    that total (the largest first); larger ones are kept unless
     ``STEREOBUDGET_KEEP_FREED_MEMORY=0``.
     """
     keep_large = _keeping_memory()
@@ -160,10 +193,33 @@ def recycle(*volumes) -> None:
                 continue
             if volume.nbytes <= SPARE_BYTES:
                 _spare.append(volume.reshape(-1))
+                _spare_frame.append(_frame_key[2])
             elif keep_large:
                 _large.append(volume.reshape(-1))
-        while sum(spare.nbytes for spare in _spare) > SPARE_BYTES:
-            _spare.pop(0)
+        if sum(spare.nbytes for spare in _spare) > SPARE_BYTES:
+            kept = _fitting_spares([spare.nbytes for spare in _spare], _spare_frame)
+            _spare[:] = [_spare[i] for i in kept]
+            _spare_frame[:] = [_spare_frame[i] for i in kept]
+
+
+def _fitting_spares(sizes: list, frames: list) -> list:
+    """Indices (ascending) of the spares kept within :data:`SPARE_BYTES`, of byte ``sizes``
+    given back during ``frames``: the current frame's first, the largest first, then
+    whatever still fits.
+
+    New memory costs per byte, so the budget keeps as many bytes as it can, and a
+    decode's largest volumes, which the next decode of the frame asks for again, never
+    make room for its temporaries (oldest first, a 1 MP x 64 Sparse decode recycled its
+    44 MB blur grid after taking its 244 MB volume back, which dropped that volume; every
+    later decode allocated it anew).  Spares of earlier frames go before the current
+    frame's, so a stale large one cannot hold its place; of equal sizes the newest stay.
+    """
+    kept, total = [], 0
+    for i in sorted(range(len(sizes)), key=lambda i: (-frames[i], -sizes[i], -i)):
+        if total + sizes[i] <= SPARE_BYTES:
+            kept.append(i)
+            total += sizes[i]
+    return sorted(kept)
 
 
 def spare_bytes() -> int:
@@ -177,7 +233,9 @@ def release() -> None:
     allocator's free memory back to the system."""
     with _lock:
         _spare.clear()
+        _spare_frame.clear()
         _large.clear()
+        _frame_key[0] = None
     if _malloc_tuned and _malloc_tuned[0]:
         try:
             ctypes.CDLL(None).malloc_trim(0)

@@ -104,6 +104,49 @@ def test_spare_volumes_are_reused_only_once_and_within_the_limit(monkeypatch):
     assert scratch._spare == []
 
 
+def test_small_spares_over_the_limit_keep_the_decodes_volume(monkeypatch):
+    # A decode takes its big volume back and then recycles a smaller temporary (a blur grid):
+    # over the limit, the temporary goes, and the next decode gets the big volume again.
+    from stereobudget import scratch
+    scratch.release()
+    monkeypatch.setattr(scratch, "SPARE_BYTES", 1000)
+    monkeypatch.setenv("STEREOBUDGET_KEEP_FREED_MEMORY", "0")
+    volume = scratch.empty_volume((200,))
+    scratch.recycle(volume)
+    scratch.recycle(np.empty(10, np.float32), np.empty(20, np.float32))
+    assert [s.size for s in scratch._spare] == [200, 10, 20]
+    assert np.shares_memory(scratch.empty_volume((200,)), volume)
+    scratch.recycle(volume)
+    scratch.recycle(np.empty(100, np.float32))         # 4 * (10 + 20 + 200 + 100) bytes > 1000
+    assert [s.size for s in scratch._spare] == [10, 20, 200]   # the largest, then what still fits
+    with scratch.frame("another"):                     # a new frame: the old frame's spares go first
+        scratch.recycle(np.empty(150, np.float32))
+    assert [s.size for s in scratch._spare] == [10, 20, 150]
+    scratch.release()
+
+
+def test_large_spares_within_a_frame_survive_misses_and_go_with_another_frame(monkeypatch):
+    # A decode may need two large volumes of one size with only one spare: within its
+    # frame that miss must not drop the other large spare (its cost volume).
+    from stereobudget import scratch
+    scratch.release()
+    monkeypatch.setattr(scratch, "SPARE_BYTES", 1000)          # > 250 float32 values is "large"
+    monkeypatch.delenv("STEREOBUDGET_KEEP_FREED_MEMORY", raising=False)
+    with scratch.frame("A"):
+        grid, cost = scratch.empty_volume((300,)), scratch.empty_volume((600,))
+        scratch.recycle(grid, cost)
+    with scratch.frame("A"):
+        first = scratch.empty_volume((300,))
+        second = scratch.empty_volume((300,))                  # a miss: allocated, nothing dropped
+        assert np.shares_memory(first, grid) and not np.shares_memory(second, grid)
+        assert np.shares_memory(scratch.empty_volume((600,)), cost)
+        scratch.recycle(first, second, cost)
+    assert scratch.spare_bytes() == 4 * 1200
+    with scratch.frame("B"):                                   # another frame: the spares go first
+        assert scratch.spare_bytes() == 0
+    scratch.release()
+
+
 def test_new_volumes_start_a_cache_line_and_hold_what_is_asked():
     # Rows of whole cache lines then start lines, and a row's prefetch asks for exactly those.
     from stereobudget import scratch
