@@ -853,7 +853,7 @@ def _lattice_sparse_dsi_grids(left, guide, rows, cols, right_values, right_steps
     band_w = zeroed_volume((gy, band_n, gz, num_disp))
     n_cols = (w - 1 - offset_x) // stride + 1  # a lattice row holds every column ox + m * stride < w
     sample_rows = np.ascontiguousarray(np.asarray(rows, np.int64)[::n_cols])
-    base_w = np.zeros(geom.shape + (min(stride, num_disp),), np.float32)
+    base_w = zeroed_volume(geom.shape + (min(stride, num_disp),))
     # Base channel b holds the mask of lattice columns (offset_x + min_disp + b) % stride (mod stride).
     channel_of_residue = np.full(stride, -1, np.int64)
     channel_of_residue[(offset_x + min_disp + np.arange(base_w.shape[3], dtype=np.int64)) % stride] = \
@@ -895,8 +895,8 @@ def sparse_joint_bilateral(guide: np.ndarray, rows: np.ndarray, cols: np.ndarray
     geom = grid_geometry(h, w, float(guide.max(initial=0.0)), sigma_s=sigma_s, sigma_r=sigma_r,
                          cells_per_sigma_s=cells_per_sigma_s, cells_per_sigma_r=cells_per_sigma_r)
     k = values.shape[1]
-    grid_val = np.zeros(geom.shape + (k,), np.float32)
-    grid_w = np.zeros(geom.shape + (1,), np.float32)
+    grid_val = zeroed_volume(geom.shape + (k,))
+    grid_w = zeroed_volume(geom.shape + (1,))
     _splat_points(np.asarray(rows, np.int64), np.asarray(cols, np.int64), values, guide,
                   1.0 / geom.cell_s, 1.0 / geom.cell_r, grid_val, grid_w)
     grids = _slice_grids(_blur_grid(grid_val, geom), _blur_base_grid(grid_w, geom), None, geom,
@@ -990,8 +990,8 @@ def sparse_dsi_grids(left: np.ndarray, guide: np.ndarray, rows: np.ndarray, cols
                                          geom=geom, min_disp=int(min_disp), num_disp=int(num_disp),
                                          truncation=truncation, step_spacing=step_spacing,
                                          step_weight=step_weight, step_truncation=step_truncation)
-    grid_val = np.zeros(geom.shape + (num_disp,), np.float32)
-    grid_w = np.zeros(geom.shape + (num_disp,), np.float32)
+    grid_val = zeroed_volume(geom.shape + (num_disp,))
+    grid_w = zeroed_volume(geom.shape + (num_disp,))
     _splat_sparse_dsi_split(np.asarray(rows, np.int64), np.asarray(cols, np.int64),
                             np.ascontiguousarray(right_values, np.float32),
                             np.ascontiguousarray(right_steps, np.float32), left, guide, int(min_disp),
