@@ -5,10 +5,10 @@ The first write to a fresh float32 volume page-faults: the kernel maps and zeroe
 Hybrid decode writes two (plus ~20 MB of bilateral grids).  Decodes that follow each other in one process (a batch of
 frames, a dask worker, an embedding application) give their cost volumes back here when
 they are done, and the next decode of the same size takes them instead of new memory.
-Volumes of up to :data:`SPARE_BYTES` in all are kept whatever their size (the largest
-first when they do not all fit); larger ones
-(frames of a megapixel and more, the bands of a tiled decode) are kept too, until a
-decode of another frame size begins (:func:`frame`: they are dropped before its volumes
+Volumes of up to :data:`LARGE_BYTES` each are kept up to :data:`SPARE_BYTES` in all (the
+largest first when they do not all fit); larger ones (the cost volumes of frames from
+~0.25 MP up, the bands of a tiled decode) are all kept, until a decode of another frame
+size begins (:func:`frame`: they are dropped before its volumes
 are allocated, so stale volumes are never held beside new ones).  New memory costs
 the most there: 1-4 MP decodes took 9-35 % less CPU time on reused volumes
 (docs/performance.md, ninth session).  :func:`spare_bytes` tells the memory check what
@@ -31,13 +31,17 @@ import numpy as np
 
 from ._parallel import fill_zero
 
-#: Small spare volumes (each at most this many bytes) are kept between decodes up to this
-#: total, the largest first (:func:`_fitting_spares`); a larger volume is a "large" spare, kept for the next
-#: decode of the same frame (:func:`frame`).
+#: Small spare volumes (each at most :data:`LARGE_BYTES`) are kept between decodes up to
+#: this total, the largest first (:func:`_fitting_spares`).
 SPARE_BYTES = 256 * 2 ** 20
+#: Volumes over this many bytes are a frame's own (its cost volumes, its largest grids):
+#: "large" spares, all kept for the next decode of the same frame (:func:`frame`) outside
+#: the :data:`SPARE_BYTES` budget.  In the budget, a 0.25 MP x 256 Sparse decode's 244 MiB
+#: volume left no room for its four 32-48 MB grids, allocated anew by every decode.
+LARGE_BYTES = 64 * 2 ** 20
 
 _lock = threading.Lock()
-_spare: list = []       # volumes of up to SPARE_BYTES each, at most SPARE_BYTES in all, oldest first
+_spare: list = []       # volumes of up to LARGE_BYTES each, at most SPARE_BYTES in all, oldest first
 _spare_frame: list = []  # the frame count (_frame_key[2]) when each of _spare was given back
 _large: list = []       # larger volumes, of the frame decoded last
 _frame_key: list = [None, 0, 0]   # the last frame's key; decodes running (in frame()); frames begun
@@ -138,7 +142,7 @@ def _take_spare(size: int):
     for i, spare in enumerate(_large):
         if spare.size == size:
             return _large.pop(i)
-    if 4 * size > SPARE_BYTES and not _frame_key[1]:
+    if 4 * size > LARGE_BYTES and not _frame_key[1]:
         _large.clear()
     return None
 
@@ -181,8 +185,8 @@ def zeroed_volume(shape) -> np.ndarray:
 def recycle(*volumes) -> None:
     """Give volumes back for later decodes; the caller must not touch them afterwards.
 
-    ``None`` entries are ignored.  Volumes of up to :data:`SPARE_BYTES` are kept within
-    that total (the largest first); larger ones are kept unless
+    ``None`` entries are ignored.  Volumes of up to :data:`LARGE_BYTES` are kept within
+    :data:`SPARE_BYTES` in all (the largest first); larger ones are kept unless
     ``STEREOBUDGET_KEEP_FREED_MEMORY=0``.
     """
     keep_large = _keeping_memory()
@@ -191,7 +195,7 @@ def recycle(*volumes) -> None:
             if (volume is None or volume.size == 0 or volume.dtype != np.float32
                     or not volume.flags.c_contiguous):
                 continue
-            if volume.nbytes <= SPARE_BYTES:
+            if volume.nbytes <= LARGE_BYTES:
                 _spare.append(volume.reshape(-1))
                 _spare_frame.append(_frame_key[2])
             elif keep_large:

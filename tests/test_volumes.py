@@ -96,6 +96,7 @@ def test_spare_volumes_are_reused_only_once_and_within_the_limit(monkeypatch):
     assert np.shares_memory(again, first) and again.shape == (7, 10) and again.dtype == np.float32
     assert not np.shares_memory(scratch.empty_volume((7, 10)), first)   # ... to one caller only
     monkeypatch.setattr(scratch, "SPARE_BYTES", 1000)
+    monkeypatch.setattr(scratch, "LARGE_BYTES", 1000)
     monkeypatch.setenv("STEREOBUDGET_KEEP_FREED_MEMORY", "0")
     scratch.recycle(np.empty(300, np.float32))         # too large to keep (large spares are off)
     scratch.recycle(np.empty(200, np.float32), np.empty(200, np.float32))   # only the newest fits
@@ -110,6 +111,7 @@ def test_small_spares_over_the_limit_keep_the_decodes_volume(monkeypatch):
     from stereobudget import scratch
     scratch.release()
     monkeypatch.setattr(scratch, "SPARE_BYTES", 1000)
+    monkeypatch.setattr(scratch, "LARGE_BYTES", 1000)
     monkeypatch.setenv("STEREOBUDGET_KEEP_FREED_MEMORY", "0")
     volume = scratch.empty_volume((200,))
     scratch.recycle(volume)
@@ -130,7 +132,8 @@ def test_large_spares_within_a_frame_survive_misses_and_go_with_another_frame(mo
     # frame that miss must not drop the other large spare (its cost volume).
     from stereobudget import scratch
     scratch.release()
-    monkeypatch.setattr(scratch, "SPARE_BYTES", 1000)          # > 250 float32 values is "large"
+    monkeypatch.setattr(scratch, "SPARE_BYTES", 1000)
+    monkeypatch.setattr(scratch, "LARGE_BYTES", 1000)          # > 250 float32 values is "large"
     monkeypatch.delenv("STEREOBUDGET_KEEP_FREED_MEMORY", raising=False)
     with scratch.frame("A"):
         grid, cost = scratch.empty_volume((300,)), scratch.empty_volume((600,))
@@ -147,6 +150,22 @@ def test_large_spares_within_a_frame_survive_misses_and_go_with_another_frame(mo
     scratch.release()
 
 
+def test_a_frames_large_volume_leaves_the_budget_to_its_smaller_ones(monkeypatch):
+    # Over LARGE_BYTES a volume is the frame's own and is kept outside the SPARE_BYTES
+    # budget, which then holds the decode's grids instead of being filled by that volume.
+    from stereobudget import scratch
+    scratch.release()
+    monkeypatch.setattr(scratch, "SPARE_BYTES", 1000)
+    monkeypatch.setattr(scratch, "LARGE_BYTES", 400)             # > 100 float32 values is "large"
+    monkeypatch.delenv("STEREOBUDGET_KEEP_FREED_MEMORY", raising=False)
+    with scratch.frame("A"):
+        scratch.recycle(np.empty(240, np.float32), np.empty(100, np.float32), np.empty(100, np.float32))
+    assert [s.size for s in scratch._large] == [240]
+    assert [s.size for s in scratch._spare] == [100, 100]
+    assert scratch.spare_bytes() == 4 * 440
+    scratch.release()
+
+
 def test_new_volumes_start_a_cache_line_and_hold_what_is_asked():
     # Rows of whole cache lines then start lines, and a row's prefetch asks for exactly those.
     from stereobudget import scratch
@@ -160,12 +179,13 @@ def test_new_volumes_start_a_cache_line_and_hold_what_is_asked():
 
 
 def test_large_spares_serve_the_same_size_and_go_before_another_size_is_allocated(monkeypatch):
-    # Volumes over SPARE_BYTES (a megapixel frame's) are kept for the next decode of the
+    # Volumes over LARGE_BYTES (a megapixel frame's) are kept for the next decode of the
     # same size; a large request of another size (another frame size) drops them first,
     # so stale volumes are never held beside new ones.  Small spares are not affected.
     from stereobudget import scratch
     scratch.release()
-    monkeypatch.setattr(scratch, "SPARE_BYTES", 1000)          # > 250 float32 values is "large"
+    monkeypatch.setattr(scratch, "SPARE_BYTES", 1000)
+    monkeypatch.setattr(scratch, "LARGE_BYTES", 1000)          # > 250 float32 values is "large"
     monkeypatch.delenv("STEREOBUDGET_KEEP_FREED_MEMORY", raising=False)
     big = scratch.empty_volume((20, 30))
     small = scratch.empty_volume((10, 10))
