@@ -105,14 +105,23 @@ def test_spare_volumes_are_reused_only_once_and_within_the_limit(monkeypatch):
     assert scratch._spare == []
 
 
-def test_small_spares_over_the_limit_keep_the_decodes_volume(monkeypatch):
-    # A decode takes its big volume back and then recycles a smaller temporary (a blur grid):
-    # over the limit, the temporary goes, and the next decode gets the big volume again.
+def _tiny_scratch(monkeypatch, *, large_bytes=1000, keep_large=True):
+    """stereobudget.scratch emptied, with a 1000-byte budget and the given large-volume line."""
     from stereobudget import scratch
     scratch.release()
     monkeypatch.setattr(scratch, "SPARE_BYTES", 1000)
-    monkeypatch.setattr(scratch, "LARGE_BYTES", 1000)
-    monkeypatch.setenv("STEREOBUDGET_KEEP_FREED_MEMORY", "0")
+    monkeypatch.setattr(scratch, "LARGE_BYTES", large_bytes)
+    if keep_large:
+        monkeypatch.delenv("STEREOBUDGET_KEEP_FREED_MEMORY", raising=False)
+    else:
+        monkeypatch.setenv("STEREOBUDGET_KEEP_FREED_MEMORY", "0")
+    return scratch
+
+
+def test_small_spares_over_the_limit_keep_the_decodes_volume(monkeypatch):
+    # A decode takes its big volume back and then recycles a smaller temporary (a blur grid):
+    # over the limit, the temporary goes, and the next decode gets the big volume again.
+    scratch = _tiny_scratch(monkeypatch, keep_large=False)
     volume = scratch.empty_volume((200,))
     scratch.recycle(volume)
     scratch.recycle(np.empty(10, np.float32), np.empty(20, np.float32))
@@ -130,11 +139,7 @@ def test_small_spares_over_the_limit_keep_the_decodes_volume(monkeypatch):
 def test_large_spares_within_a_frame_survive_misses_and_go_with_another_frame(monkeypatch):
     # A decode may need two large volumes of one size with only one spare: within its
     # frame that miss must not drop the other large spare (its cost volume).
-    from stereobudget import scratch
-    scratch.release()
-    monkeypatch.setattr(scratch, "SPARE_BYTES", 1000)
-    monkeypatch.setattr(scratch, "LARGE_BYTES", 1000)          # > 250 float32 values is "large"
-    monkeypatch.delenv("STEREOBUDGET_KEEP_FREED_MEMORY", raising=False)
+    scratch = _tiny_scratch(monkeypatch)                       # > 250 float32 values is "large"
     with scratch.frame("A"):
         grid, cost = scratch.empty_volume((300,)), scratch.empty_volume((600,))
         scratch.recycle(grid, cost)
@@ -153,11 +158,7 @@ def test_large_spares_within_a_frame_survive_misses_and_go_with_another_frame(mo
 def test_a_frames_large_volume_leaves_the_budget_to_its_smaller_ones(monkeypatch):
     # Over LARGE_BYTES a volume is the frame's own and is kept outside the SPARE_BYTES
     # budget, which then holds the decode's grids instead of being filled by that volume.
-    from stereobudget import scratch
-    scratch.release()
-    monkeypatch.setattr(scratch, "SPARE_BYTES", 1000)
-    monkeypatch.setattr(scratch, "LARGE_BYTES", 400)             # > 100 float32 values is "large"
-    monkeypatch.delenv("STEREOBUDGET_KEEP_FREED_MEMORY", raising=False)
+    scratch = _tiny_scratch(monkeypatch, large_bytes=400)      # > 100 float32 values is "large"
     with scratch.frame("A"):
         scratch.recycle(np.empty(240, np.float32), np.empty(100, np.float32), np.empty(100, np.float32))
     assert [s.size for s in scratch._large] == [240]
