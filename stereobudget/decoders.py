@@ -379,8 +379,8 @@ def decode(left: np.ndarray, samples: SampleSet, *, max_disp: int, min_disp: int
     Decodes in one process hand memory to each other: dead cost volumes are kept for
     the next decode (:mod:`stereobudget.scratch`: up to 256 MiB of volumes of up to 64 MiB,
     and all larger ones of the frame decoded last, dropped when a decode of another frame
-    begins; the memory limit counts them as available), and the first call lets glibc keep freed blocks
-    mapped (:func:`stereobudget.scratch.keep_freed_memory`).
+    begins; the memory limit counts them as available), and the first call lets glibc
+    keep freed blocks mapped (:func:`stereobudget.scratch.keep_freed_memory`).
     ``STEREOBUDGET_KEEP_FREED_MEMORY=0`` opts out of both but the 256 MiB;
     :func:`stereobudget.scratch.release` gives everything back.
     """

@@ -8,8 +8,8 @@ they are done, and the next decode of the same size takes them instead of new me
 Volumes of up to :data:`LARGE_BYTES` each are kept up to :data:`SPARE_BYTES` in all (the
 largest first when they do not all fit); larger ones (the cost volumes of frames from
 ~0.25 MP up, the bands of a tiled decode) are all kept, until a decode of another frame
-size begins (:func:`frame`: they are dropped before its volumes
-are allocated, so stale volumes are never held beside new ones).  New memory costs
+size begins (:func:`frame`: they are dropped before its volumes are allocated, so stale
+volumes are never held beside new ones).  New memory costs
 the most there: 1-4 MP decodes took 9-35 % less CPU time on reused volumes
 (docs/performance.md, ninth session).  :func:`spare_bytes` tells the memory check what
 is held; :func:`release` drops everything.  A single decode in a fresh process (one
@@ -41,10 +41,19 @@ SPARE_BYTES = 256 * 2 ** 20
 LARGE_BYTES = 64 * 2 ** 20
 
 _lock = threading.Lock()
-_spare: list = []       # volumes of up to LARGE_BYTES each, at most SPARE_BYTES in all, oldest first
-_spare_frame: list = []  # the frame count (_frame_key[2]) when each of _spare was given back
+_spare: list = []       # volumes of up to LARGE_BYTES each, at most SPARE_BYTES in all, as given back
+_spare_frame: list = []  # _frames.begun when each of _spare was given back
 _large: list = []       # larger volumes, of the frame decoded last
-_frame_key: list = [None, 0, 0]   # the last frame's key; decodes running (in frame()); frames begun
+
+
+class _Frames:
+    """The decodes :func:`frame` has seen (module state, changed with the lock held)."""
+    key = None      # the last frame's key
+    running = 0     # decodes inside frame() now
+    begun = 0       # frames begun: keys that differed from the one before
+
+
+_frames = _Frames()
 _malloc_tuned: list = []
 
 # glibc's mallopt parameters (malloc.h) and the largest mmap threshold it accepts on 64-bit.
@@ -142,7 +151,7 @@ def _take_spare(size: int):
     for i, spare in enumerate(_large):
         if spare.size == size:
             return _large.pop(i)
-    if 4 * size > LARGE_BYTES and not _frame_key[1]:
+    if 4 * size > LARGE_BYTES and not _frames.running:
         _large.clear()
     return None
 
@@ -159,16 +168,16 @@ def frame(key):
     volume, allocated anew by every decode of the batch.)
     """
     with _lock:
-        if _frame_key[0] != key:
+        if _frames.key != key:
             _large.clear()
-            _frame_key[2] += 1
-        _frame_key[0] = key
-        _frame_key[1] += 1
+            _frames.begun += 1
+        _frames.key = key
+        _frames.running += 1
     try:
         yield
     finally:
         with _lock:
-            _frame_key[1] -= 1
+            _frames.running -= 1
 
 
 def zeroed_volume(shape) -> np.ndarray:
@@ -197,7 +206,7 @@ def recycle(*volumes) -> None:
                 continue
             if volume.nbytes <= LARGE_BYTES:
                 _spare.append(volume.reshape(-1))
-                _spare_frame.append(_frame_key[2])
+                _spare_frame.append(_frames.begun)
             elif keep_large:
                 _large.append(volume.reshape(-1))
         if sum(spare.nbytes for spare in _spare) > SPARE_BYTES:
@@ -239,7 +248,7 @@ def release() -> None:
         _spare.clear()
         _spare_frame.clear()
         _large.clear()
-        _frame_key[0] = None
+        _frames.key = None
     if _malloc_tuned and _malloc_tuned[0]:
         try:
             ctypes.CDLL(None).malloc_trim(0)
