@@ -19,6 +19,7 @@ pipeline of pure functions from the other modules:
 
 from __future__ import annotations
 
+
 import logging
 import time
 from dataclasses import dataclass, field, asdict, replace
@@ -397,10 +398,9 @@ def decode(left: np.ndarray, samples: SampleSet, *, max_disp: int, min_disp: int
     if tile_rows and tile_rows < samples.height:
         return decode_tiled(left, samples, max_disp=max_disp, min_disp=min_disp, method=method, params=params,
                             max_memory=max_memory, tile_rows=tile_rows, overlap=overlap)
-    # Another frame size (or anything else that sizes the volumes) than the last decode's:
-    # the large spare volumes of that one are dropped (scratch.frame).
-    with scratch.frame((samples.height, samples.width, samples.pattern, int(max_disp - min_disp + 1), method,
-                        params)):
+    # Another frame size than the last decode's: the large spare volumes of that one are
+    # dropped (scratch.frame; of the same size, those this decode does not take go after it).
+    with scratch.frame((samples.height, samples.width, int(max_disp - min_disp + 1), method)):
         return _decode_whole_frame(left, samples, max_disp=max_disp, min_disp=min_disp, method=method,
                                    params=params, max_memory=max_memory)
 
@@ -607,9 +607,11 @@ def decode_tiled(left: np.ndarray, samples: SampleSet, *, max_disp: int, min_dis
     for top in range(0, h, tile_rows):
         bottom = min(top + tile_rows, h)
         band_top, band_bottom = max(top - overlap, 0), min(bottom + overlap, h)
-        band = decode(left[band_top:band_bottom], _band_samples(samples, band_top, band_bottom),
-                      max_disp=max_disp, min_disp=min_disp, method=method, params=params,
-                      max_memory=max_memory, tile_rows=0)
+        # The bands are sized to the memory limit: no room for spare volumes beside them.
+        with scratch.holding_no_large_spares():
+            band = decode(left[band_top:band_bottom], _band_samples(samples, band_top, band_bottom),
+                          max_disp=max_disp, min_disp=min_disp, method=method, params=params,
+                          max_memory=max_memory, tile_rows=0)
         disparity[top:bottom] = band.disparity[top - band_top:bottom - band_top]
         for stage, seconds in band.timings.items():
             timings[stage] = timings.get(stage, 0.0) + seconds

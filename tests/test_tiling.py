@@ -62,3 +62,29 @@ def test_tiling_refuses_downsample(scene):
     samples = encode_image(scene.right, pattern=SamplingPattern("downsample", 4, 4))
     with pytest.raises(OptionError):
         decode_tiled(scene.left, samples, max_disp=16, method="downsample", tile_rows=40)
+
+
+def test_bands_hold_no_large_spares_beside_their_volumes(scene, monkeypatch):
+    # Bands are sized to the memory limit: their large volumes go back to the system, not
+    # to the spares, so no band holds a finished one beside its own.
+    from stereobudget import scratch
+    scratch.release()
+    monkeypatch.setattr(scratch, "LARGE_BYTES", 16 * 1024)   # the bands' cost volumes are "large"
+    monkeypatch.delenv("STEREOBUDGET_KEEP_FREED_MEMORY", raising=False)
+    samples = encode_image(scene.right, pattern=SamplingPattern("grid", 4, 4))
+    held = []
+    recycle = scratch.recycle
+
+    def recording_recycle(*volumes):
+        recycle(*volumes)
+        held.append(len(scratch._large))
+
+    monkeypatch.setattr(scratch, "recycle", recording_recycle)
+    tiled = decode_tiled(scene.left, samples, max_disp=16, method="sparse", tile_rows=30, overlap=10).disparity
+    assert held and not any(held) and scratch._large == []
+    whole = decode(scene.left, samples, max_disp=16, method="sparse", tile_rows=0)   # untiled: kept
+    assert scratch._large
+    scratch.release()
+    np.testing.assert_array_equal(tiled, decode_tiled(scene.left, samples, max_disp=16, method="sparse",
+                                                      tile_rows=30, overlap=10).disparity)
+    assert whole.disparity.shape == tiled.shape

@@ -150,6 +150,9 @@ def test_large_spares_within_a_frame_survive_misses_and_go_with_another_frame(mo
         assert np.shares_memory(scratch.empty_volume((600,)), cost)
         scratch.recycle(first, second, cost)
     assert scratch.spare_bytes() == 4 * 1200
+    with scratch.frame("A"):                                   # takes one 300: the spares it left go after it
+        scratch.recycle(scratch.empty_volume((300,)))
+    assert [spare.size for spare in scratch._large] == [300]
     with scratch.frame("B"):                                   # another frame: the spares go first
         assert scratch.spare_bytes() == 0
     scratch.release()
