@@ -19,7 +19,6 @@ pipeline of pure functions from the other modules:
 
 from __future__ import annotations
 
-
 import logging
 import time
 from dataclasses import dataclass, field, asdict, replace

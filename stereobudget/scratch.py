@@ -162,11 +162,12 @@ def frame(key):
     """Mark a decode of the frame ``key`` (anything comparable that fixes its volumes' sizes).
 
     A key other than the previous decode's drops the large spares first: they are of
-    another frame size, and must not be held beside its new volumes.  Within the block
-    a large miss drops nothing; at its end, the large spares it did not take go.  (Guessing the frame from the misses alone failed when a
-    decode asks for two large volumes of one size and one is spare: a 4 MP x 128 Sparse
-    decode asks for two 374 MiB grids, and the second request dropped the 1.9 GiB cost
-    volume, allocated anew by every decode of the batch.)
+    another frame size, and must not be held beside its new volumes.  Within the block a
+    large miss drops nothing; at its end, the large spares it did not take go.  (Guessing
+    the frame from the misses alone failed when a decode asks for two large volumes of one
+    size and one is spare: a 4 MP x 128 Sparse decode asks for two 374 MiB grids, and the
+    second request dropped the 1.9 GiB cost volume, allocated anew by every decode of the
+    batch.)
     """
     with _lock:
         if _frames.key != key:
