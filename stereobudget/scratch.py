@@ -41,8 +41,8 @@ SPARE_BYTES = 256 * 2 ** 20
 LARGE_BYTES = 64 * 2 ** 20
 
 _lock = threading.Lock()
-_spare: list = []       # volumes of up to LARGE_BYTES each, at most SPARE_BYTES in all, as given back
-_spare_frame: list = []  # _frames.begun when each of _spare was given back
+_spare: list = []       # (_frames.begun when given back, volume) of up to LARGE_BYTES each,
+                        # at most SPARE_BYTES in all, in the order given back
 _large: list = []       # larger volumes, of the frame decoded last
 
 
@@ -145,10 +145,9 @@ def _take_spare(size: int):
     allocated.  Within one, the frame is known to be the spares' own, and a miss only
     means the decode needs more volumes of a size than were given back.
     """
-    for i, spare in enumerate(_spare):
+    for i, (_, spare) in enumerate(_spare):
         if spare.size == size:
-            _spare_frame.pop(i)
-            return _spare.pop(i)
+            return _spare.pop(i)[1]
     for i, spare in enumerate(_large):
         if spare.size == size:
             return _large.pop(i)
@@ -226,20 +225,16 @@ def recycle(*volumes) -> None:
                     or not volume.flags.c_contiguous):
                 continue
             if volume.nbytes <= LARGE_BYTES:
-                _spare.append(volume.reshape(-1))
-                _spare_frame.append(_frames.begun)
+                _spare.append((_frames.begun, volume.reshape(-1)))
             elif keep_large and not _frames.holding_none:
                 _large.append(volume.reshape(-1))
-        if sum(spare.nbytes for spare in _spare) > SPARE_BYTES:
-            kept = _fitting_spares([spare.nbytes for spare in _spare], _spare_frame)
-            _spare[:] = [_spare[i] for i in kept]
-            _spare_frame[:] = [_spare_frame[i] for i in kept]
+        if sum(spare.nbytes for _, spare in _spare) > SPARE_BYTES:
+            _spare[:] = _fitting_spares(_spare)
 
 
-def _fitting_spares(sizes: list, frames: list) -> list:
-    """Indices (ascending) of the spares kept within :data:`SPARE_BYTES`, of byte ``sizes``
-    given back during ``frames``: the current frame's first, the largest first, then
-    whatever still fits.
+def _fitting_spares(spares: list) -> list:
+    """The (frame, volume) ``spares`` kept within :data:`SPARE_BYTES`, in their order: the
+    latest frame's first, the largest first, then whatever still fits.
 
     New memory costs per byte, so the budget keeps as many bytes as it can, and a
     decode's largest volumes, which the next decode of the frame asks for again, never
@@ -248,18 +243,18 @@ def _fitting_spares(sizes: list, frames: list) -> list:
     later decode allocated it anew).  Spares of earlier frames go before the current
     frame's, so a stale large one cannot hold its place; of equal sizes the newest stay.
     """
-    kept, total = [], 0
-    for i in sorted(range(len(sizes)), key=lambda i: (-frames[i], -sizes[i], -i)):
-        if total + sizes[i] <= SPARE_BYTES:
-            kept.append(i)
-            total += sizes[i]
-    return sorted(kept)
+    kept, total = set(), 0
+    for i in sorted(range(len(spares)), key=lambda i: (-spares[i][0], -spares[i][1].nbytes, -i)):
+        if total + spares[i][1].nbytes <= SPARE_BYTES:
+            kept.add(i)
+            total += spares[i][1].nbytes
+    return [spare for i, spare in enumerate(spares) if i in kept]
 
 
 def spare_bytes() -> int:
     """Bytes held in spare volumes (a decode takes them or drops them before allocating)."""
     with _lock:
-        return sum(spare.nbytes for spare in _spare + _large)
+        return sum(spare.nbytes for _, spare in _spare) + sum(spare.nbytes for spare in _large)
 
 
 def release() -> None:
@@ -267,7 +262,6 @@ def release() -> None:
     allocator's free memory back to the system."""
     with _lock:
         _spare.clear()
-        _spare_frame.clear()
         _large.clear()
         _frames.key = None
     if _malloc_tuned and _malloc_tuned[0]:

@@ -100,7 +100,7 @@ def test_spare_volumes_are_reused_only_once_and_within_the_limit(monkeypatch):
     monkeypatch.setenv("STEREOBUDGET_KEEP_FREED_MEMORY", "0")
     scratch.recycle(np.empty(300, np.float32))         # too large to keep (large spares are off)
     scratch.recycle(np.empty(200, np.float32), np.empty(200, np.float32))   # only the newest fits
-    assert [s.size for s in scratch._spare] == [200]
+    assert [s.size for _, s in scratch._spare] == [200]
     scratch.release()
     assert scratch._spare == []
 
@@ -125,14 +125,14 @@ def test_small_spares_over_the_limit_keep_the_decodes_volume(monkeypatch):
     volume = scratch.empty_volume((200,))
     scratch.recycle(volume)
     scratch.recycle(np.empty(10, np.float32), np.empty(20, np.float32))
-    assert [s.size for s in scratch._spare] == [200, 10, 20]
+    assert [s.size for _, s in scratch._spare] == [200, 10, 20]
     assert np.shares_memory(scratch.empty_volume((200,)), volume)
     scratch.recycle(volume)
     scratch.recycle(np.empty(100, np.float32))         # 4 * (10 + 20 + 200 + 100) bytes > 1000
-    assert [s.size for s in scratch._spare] == [10, 20, 200]   # the largest, then what still fits
+    assert [s.size for _, s in scratch._spare] == [10, 20, 200]   # the largest, then what still fits
     with scratch.frame("another"):                     # a new frame: the old frame's spares go first
         scratch.recycle(np.empty(150, np.float32))
-    assert [s.size for s in scratch._spare] == [10, 20, 150]
+    assert [s.size for _, s in scratch._spare] == [10, 20, 150]
     scratch.release()
 
 
@@ -165,7 +165,7 @@ def test_a_frames_large_volume_leaves_the_budget_to_its_smaller_ones(monkeypatch
     with scratch.frame("A"):
         scratch.recycle(np.empty(240, np.float32), np.empty(100, np.float32), np.empty(100, np.float32))
     assert [s.size for s in scratch._large] == [240]
-    assert [s.size for s in scratch._spare] == [100, 100]
+    assert [s.size for _, s in scratch._spare] == [100, 100]
     assert scratch.spare_bytes() == 4 * 440
     scratch.release()
 
@@ -233,7 +233,7 @@ def test_decodes_in_one_process_give_the_same_disparity_with_recycled_volumes():
     for method in ("hybrid", "sparse"):
         first = stereobudget.decode(scene.left, samples, max_disp=12, method=method).disparity
         assert scratch._spare, "the decode handed its volumes back"
-        for spare in scratch._spare:
+        for _, spare in scratch._spare:
             spare.fill(np.nan)                         # poison: any value not rewritten shows
         second = stereobudget.decode(scene.left, samples, max_disp=12, method=method).disparity
         np.testing.assert_array_equal(first, second)
