@@ -11,8 +11,10 @@ Sections (each timed in this one run, so the ratios compare like with like):
    (``STEREO_SGBM_MODE_SGBM_3WAY``, 64 disparities, block 5, OpenCV's default threads)
    on the full pair, after a 50 ms pause; ratio ours / SGBM of the method's own block.  Also the stages of the right-image recovery
    (warp, inpaint, enhance: ``sb-decode --right``), timed separately.
-   Memory: the bandwidth of one pass over a Teddy volume, and the tree aggregation of
-   that grid at 8-61 layers on 1 and 2 threads (per-node vs per-layer cost).
+   Memory: the bandwidth of one pass over a Teddy volume, the tree aggregation of
+   that grid at 8-61 layers on 1 and 2 threads (per-node vs per-layer cost), and the
+   decode's own walks (rows in the tree's layout): one walk on one thread, split over
+   two, and two walks at once, one per thread (Hybrid's aggregation stage).
 3. Scaling: synthetic smooth-texture pairs at 0.25, 1 and 4 MP x 64 / 128 / 256
    disparities: time per (pixel x disparity) and peak resident memory.  ``--scaling-rounds``
    (3) rounds, each timing every point in a fresh subprocess (even rounds forward, odd
@@ -327,6 +329,38 @@ def memory_benchmark(data_dir: Path, *, repeats: int) -> dict:
     out["aggregate"] = layers
     out["threads"] = threads
     out["nodes"] = h * w
+
+    # The decode's own walks: rows in the tree's layout, 64 layers, winners taken.  One
+    # walk on one thread, the same walk split over two, and two walks at once, one per
+    # thread (the aggregation stage of Hybrid: both views' volumes).  Each timed walk
+    # starts from a fresh copy of the cost (the walks aggregate in place).
+    layout = tree_module.tree_layout(tree)
+    rows = np.random.default_rng(1).random((h * w, 64), dtype=np.float32)
+    first, second = np.empty_like(rows), np.empty_like(rows)
+
+    def walk_time(walk, n_threads):
+        numba.set_num_threads(n_threads)
+        try:
+            times = []
+            for _ in range(repeats + 1):
+                np.copyto(first, rows)
+                np.copyto(second, rows)
+                t = time.perf_counter()
+                walk()
+                times.append(time.perf_counter() - t)
+            return _median(times[1:])
+        finally:
+            numba.set_num_threads(threads)
+
+    def one():
+        tree_module.aggregate_rows_winners(first, layout, min_disp=0)
+
+    def two():
+        tree_module.aggregate_two_rows_winners(first, layout, second, layout, min_disp=0)
+    out["layout_walks"] = {"one walk, 1 thread": walk_time(one, 1)}
+    if threads >= 2:
+        out["layout_walks"]["one walk, split over 2 threads"] = walk_time(one, 2)
+        out["layout_walks"]["two walks at once, one per thread"] = walk_time(two, 2)
     return out
 
 
@@ -351,6 +385,16 @@ def memory_report(r: dict) -> list[str]:
               f"layers the walk moves the volume at {moved:.1f} GB/s (read + write, both passes), against "
               f"{2 * mb / 1e3 / r['copy']:.1f} GB/s for a sequential copy: rows fetched from data-dependent "
               "addresses in tree order do not stream.", ""]
+    walks = r.get("layout_walks")
+    if walks:
+        lines += ["The decode's walks (rows in the tree's layout, 64 layers, winners taken; 2 passes over "
+                  f"{r['nodes'] * 64 * 4 / 1e6:.0f} MB):", "",
+                  "| walk | wall s | GB/s (read + write, both passes) |", "|---|---:|---:|"]
+        for name, seconds in walks.items():
+            volumes = 2 if name.startswith("two") else 1
+            lines.append(f"| {name} | {seconds:.4f} | "
+                         f"{volumes * 4 * r['nodes'] * 64 * 4 / 1e9 / seconds:.1f} |")
+        lines.append("")
     return lines
 
 
