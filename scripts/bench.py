@@ -297,14 +297,25 @@ def memory_benchmark(data_dir: Path, *, repeats: int) -> dict:
     volume = np.random.default_rng(0).random((h, w, 61), dtype=np.float32)
     copy = np.empty_like(volume)
 
-    def best(fn):
-        fn()
+    def best(fn, prepare=None):
+        """Median time of ``fn`` after a warm-up; ``prepare`` (untimed) runs before each call."""
         times = []
-        for _ in range(repeats):
+        for _ in range(repeats + 1):
+            if prepare is not None:
+                prepare()
             t = time.perf_counter()
             fn()
             times.append(time.perf_counter() - t)
-        return _median(times)
+        return _median(times[1:])
+
+    threads = numba.get_num_threads()
+
+    def on_threads(n, measure):
+        numba.set_num_threads(n)
+        try:
+            return measure()
+        finally:
+            numba.set_num_threads(threads)
 
     out = {"volume_mb": volume.nbytes / 1e6,
            "copy": best(lambda: np.copyto(copy, volume))}
@@ -314,18 +325,11 @@ def memory_benchmark(data_dir: Path, *, repeats: int) -> dict:
         fresh_volume[...] = 1.0
     out["fresh_fill"] = best(fresh)
     layers = {}
-    threads = numba.get_num_threads()
     for d in (8, 16, 32, 61):
         part = np.ascontiguousarray(volume[:, :, :d])
         target = np.empty_like(part)
-        row = {}
-        for n in sorted({1, threads}):
-            numba.set_num_threads(n)
-            try:
-                row[n] = best(lambda: tree_module.aggregate(part, tree, out=target))
-            finally:
-                numba.set_num_threads(threads)
-        layers[d] = row
+        layers[d] = {n: on_threads(n, lambda: best(lambda: tree_module.aggregate(part, tree, out=target)))
+                     for n in sorted({1, threads})}
     out["aggregate"] = layers
     out["threads"] = threads
     out["nodes"] = h * w
@@ -338,29 +342,21 @@ def memory_benchmark(data_dir: Path, *, repeats: int) -> dict:
     rows = np.random.default_rng(1).random((h * w, 64), dtype=np.float32)
     first, second = np.empty_like(rows), np.empty_like(rows)
 
-    def walk_time(walk, n_threads):
-        numba.set_num_threads(n_threads)
-        try:
-            times = []
-            for _ in range(repeats + 1):
-                np.copyto(first, rows)
-                np.copyto(second, rows)
-                t = time.perf_counter()
-                walk()
-                times.append(time.perf_counter() - t)
-            return _median(times[1:])
-        finally:
-            numba.set_num_threads(threads)
+    def fresh_rows():
+        np.copyto(first, rows)
+        np.copyto(second, rows)
 
     def one():
         tree_module.aggregate_rows_winners(first, layout, min_disp=0)
 
     def two():
         tree_module.aggregate_two_rows_winners(first, layout, second, layout, min_disp=0)
-    out["layout_walks"] = {"one walk, 1 thread": walk_time(one, 1)}
+    walks = [("one walk, 1 thread", 1, one, 1)]
     if threads >= 2:
-        out["layout_walks"]["one walk, split over 2 threads"] = walk_time(one, 2)
-        out["layout_walks"]["two walks at once, one per thread"] = walk_time(two, 2)
+        walks += [("one walk, split over 2 threads", 1, one, 2), ("two walks at once, one per thread", 2, two, 2)]
+    out["layout_walks"] = [{"walk": name, "volumes": volumes, "bytes_per_volume": rows.nbytes,
+                            "seconds": on_threads(n, lambda: best(walk, fresh_rows))}
+                           for name, volumes, walk, n in walks]
     return out
 
 
@@ -388,12 +384,11 @@ def memory_report(r: dict) -> list[str]:
     walks = r.get("layout_walks")
     if walks:
         lines += ["The decode's walks (rows in the tree's layout, 64 layers, winners taken; 2 passes over "
-                  f"{r['nodes'] * 64 * 4 / 1e6:.0f} MB):", "",
+                  f"{walks[0]['bytes_per_volume'] / 1e6:.0f} MB):", "",
                   "| walk | wall s | GB/s (read + write, both passes) |", "|---|---:|---:|"]
-        for name, seconds in walks.items():
-            volumes = 2 if name.startswith("two") else 1
-            lines.append(f"| {name} | {seconds:.4f} | "
-                         f"{volumes * 4 * r['nodes'] * 64 * 4 / 1e9 / seconds:.1f} |")
+        for walk in walks:
+            moved = 4 * walk["volumes"] * walk["bytes_per_volume"]   # 2 passes, each reads and writes
+            lines.append(f"| {walk['walk']} | {walk['seconds']:.4f} | {moved / 1e9 / walk['seconds']:.1f} |")
         lines.append("")
     return lines
 
