@@ -276,7 +276,11 @@ def noise_level_of_gray(gray: np.ndarray, *, block: int = 8, percentile: float =
     if h < 3 * block or w < 3 * block:
         return 0.0
     kernel = np.array([[1, -2, 1], [-2, 4, -2], [1, -2, 1]], np.float32)
-    response = np.abs(cv2.filter2D(gray, -1, kernel, borderType=cv2.BORDER_REFLECT))
-    tiles = response[: h // block * block, : w // block * block]
-    tiles = tiles.reshape(h // block, block, w // block, block).mean(axis=(1, 3))
+    response = cv2.filter2D(gray, -1, kernel, borderType=cv2.BORDER_REFLECT)
+    np.abs(response, out=response)
+    rows, cols = h // block, w // block
+    # The tile means by OpenCV's area resampling, which averages whole blocks at an integer
+    # factor: a third of numpy's mean over two strided axes (0.56 -> 0.19 ms on Teddy;
+    # the mean then differs in its last bits).
+    tiles = cv2.resize(response[: rows * block, : cols * block], (cols, rows), interpolation=cv2.INTER_AREA)
     return float(np.sqrt(np.pi / 2.0) / 6.0 * np.percentile(tiles, percentile))

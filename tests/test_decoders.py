@@ -127,6 +127,21 @@ def test_noise_level_tracks_added_noise_not_texture():
     assert 1.5 < levels[1] < 3.0 and 3.0 < levels[2] < 6.0
 
 
+def test_noise_level_is_the_low_percentile_of_tile_mean_responses():
+    # Immerkaer's response averaged over whole 8 x 8 tiles (a partial last tile row and
+    # column ignored), read at the 20th percentile: a plain numpy statement of it.
+    import cv2
+    from stereobudget.cost import noise_level_of_gray
+    gray = np.random.default_rng(4).normal(128, 3, (61, 83)).astype(np.float32)
+    kernel = np.array([[1, -2, 1], [-2, 4, -2], [1, -2, 1]], np.float32)
+    response = np.abs(cv2.filter2D(gray.astype(np.float64), -1, kernel.astype(np.float64),
+                                   borderType=cv2.BORDER_REFLECT))
+    tiles = response[:56, :80].reshape(7, 8, 10, 8).mean(axis=(1, 3))
+    expected = np.sqrt(np.pi / 2) / 6 * np.percentile(tiles, 20)
+    assert noise_level_of_gray(gray) == pytest.approx(expected, rel=1e-5)
+    assert noise_level_of_gray(gray[:20, :83]) == 0.0  # fewer than three tiles high: no estimate
+
+
 def test_noisy_images_keep_costs_discriminative():
     from stereobudget.decoders import adapt_to_noise
     sc = make_scene("slanted", seed=0, noise_sigma=8)
