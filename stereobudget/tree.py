@@ -217,6 +217,49 @@ def _edge_count(height, width):
     return height * (width - 1) + (height - 1) * width
 
 
+@njit(cache=True, inline="always")
+def _order_value(keys, edge):
+    """An edge's place in Kruskal's order as one integer: its key, then its id."""
+    return (np.int64(keys[edge]) << 32) | edge
+
+
+@njit(cache=True, nogil=True)
+def _kept_edges(keys, height, width):
+    """The grid's edge ids, in id order, that Kruskal has to look at: all but those that
+    come last, in Kruskal's order (key, then edge id), on the 4-cycle of some 2 x 2
+    block of pixels.
+
+    When Kruskal reaches such an edge the other three edges of its cycle have been
+    reached, and each joined its ends or found them joined already: its ends are
+    joined, and Kruskal rejects it (the cycle property).  So the tree does not change,
+    bit for bit; but those rejections were Kruskal's unpredictable branches, and on a
+    grid about 40 % of all edges are such maxima (Teddy: 336 675 -> 198 355 edges for
+    I1, 187 168 for the right view), which now neither the sort nor Kruskal sees.
+    """
+    last = np.zeros(keys.shape[0], dtype=np.uint8)
+    for r in range(height - 1):
+        for c in range(width - 1):
+            p = r * width + c
+            # The block's edges: p's right and down edges, the down edge of p + 1 and the
+            # right edge of the pixel below p.
+            top = _order_value(keys, 2 * p)
+            left = _order_value(keys, 2 * p + 1)
+            right = _order_value(keys, 2 * p + 3)
+            bottom = _order_value(keys, 2 * (p + width))
+            last[max(max(top, left), max(right, bottom)) & 0xFFFFFFFF] = 1
+    # Compacted without a branch per edge: every id is written, only the kept ones advance.
+    edges = np.empty(_edge_count(height, width) + 2, dtype=np.int32)
+    kept = 0
+    for r in range(height):
+        for c in range(width):
+            p = r * width + c
+            edges[kept] = 2 * p
+            kept += (c + 1 < width) & (last[2 * p] == 0)
+            edges[kept] = 2 * p + 1
+            kept += (r + 1 < height) & (last[2 * p + 1] == 0)
+    return edges[:kept]
+
+
 #: Key counts up to this are sorted in four interleaved streams (:func:`_interleaved_sorted_edges`):
 #: 8-bit guides' 256 keys (Teddy's I1: 1.2 -> 0.5 ms).  16-bit guides' 65 536 keys are not:
 #: four count tables of that size cost more than the interleaving saves (0.65 -> 0.85 ms).
@@ -224,89 +267,76 @@ _INTERLEAVED_KEY_COUNT = 4096
 
 
 @njit(cache=True, nogil=True)
-def _counting_sorted_edges(keys, height, width, key_count):
-    """Grid edge ids sorted by integer key; stable, so ties keep edge-id order."""
+def _counting_sorted_edges(keys, edges, key_count):
+    """``edges`` (ids in increasing order) sorted by integer key; stable, so ties keep
+    edge-id order."""
     if key_count <= _INTERLEAVED_KEY_COUNT:
-        return _interleaved_sorted_edges(keys, height, width, key_count)
-    # Row and column loops rather than p % width per pixel: the division was ~30 % of the sort.
+        return _interleaved_sorted_edges(keys, edges, key_count)
     counts = np.zeros(key_count + 1, dtype=np.int32)
-    for r in range(height):
-        base = r * width
-        for c in range(width - 1):
-            counts[keys[2 * (base + c)] + 1] += 1
-        if r + 1 < height:
-            for c in range(width):
-                counts[keys[2 * (base + c) + 1] + 1] += 1
+    for e in edges:
+        counts[keys[e] + 1] += 1
     for k in range(key_count):
         counts[k + 1] += counts[k]
-    sorted_edges = np.empty(_edge_count(height, width), dtype=np.int32)
-    for r in range(height):
-        has_below = r + 1 < height
-        for c in range(width):
-            p = r * width + c
-            if c + 1 < width:
-                key = keys[2 * p]
-                sorted_edges[counts[key]] = 2 * p
-                counts[key] += 1
-            if has_below:
-                key = keys[2 * p + 1]
-                sorted_edges[counts[key]] = 2 * p + 1
-                counts[key] += 1
+    sorted_edges = np.empty(edges.shape[0], dtype=np.int32)
+    for e in edges:
+        key = keys[e]
+        sorted_edges[counts[key]] = e
+        counts[key] += 1
     return sorted_edges
 
 
 @njit(cache=True, nogil=True)
-def _interleaved_sorted_edges(keys, height, width, key_count):
+def _interleaved_sorted_edges(keys, edges, key_count):
     """:func:`_counting_sorted_edges` for few keys, in four interleaved streams.
 
     With 256 keys neighbouring edges often share one, and each count or position update
     then waits for the previous one (a chain through memory: Teddy's 8-bit sort took
-    1.2 ms).  The edge ids are cut into four quarters, each counted and placed by its own
+    1.2 ms).  The edge list is cut into four quarters, each counted and placed by its own
     table, one element of each quarter per step: four independent chains.  Within a key
     the quarters' edges are placed in quarter order, so the order is the stable sort's.
-    Edges leaving the grid carry ``key_count`` (:func:`_edge_keys`) and end up last, past
-    the returned edges.
     """
-    total = keys.shape[0]
+    total = edges.shape[0]
     quarter = total // 4
-    counts = np.zeros((4, key_count + 1), dtype=np.int32)
+    counts = np.zeros((4, key_count), dtype=np.int32)
     first, second, third, fourth = counts[0], counts[1], counts[2], counts[3]
     for j in range(quarter):
-        first[keys[j]] += 1
-        second[keys[quarter + j]] += 1
-        third[keys[2 * quarter + j]] += 1
-        fourth[keys[3 * quarter + j]] += 1
+        first[keys[edges[j]]] += 1
+        second[keys[edges[quarter + j]]] += 1
+        third[keys[edges[2 * quarter + j]]] += 1
+        fourth[keys[edges[3 * quarter + j]]] += 1
     for j in range(4 * quarter, total):
-        fourth[keys[j]] += 1
+        fourth[keys[edges[j]]] += 1
     # Each (quarter, key) table entry becomes its first position: keys ascending, quarters within a key.
     position = 0
-    for k in range(key_count + 1):
+    for k in range(key_count):
         for q in range(4):
             n = counts[q, k]
             counts[q, k] = position
             position += n
     placed = np.empty(total, dtype=np.int32)
     for j in range(quarter):
-        key = keys[j]
-        placed[first[key]] = j
+        e = edges[j]
+        key = keys[e]
+        placed[first[key]] = e
         first[key] += 1
-        e = quarter + j
+        e = edges[quarter + j]
         key = keys[e]
         placed[second[key]] = e
         second[key] += 1
-        e += quarter
+        e = edges[2 * quarter + j]
         key = keys[e]
         placed[third[key]] = e
         third[key] += 1
-        e += quarter
+        e = edges[3 * quarter + j]
         key = keys[e]
         placed[fourth[key]] = e
         fourth[key] += 1
-    for e in range(4 * quarter, total):
+    for j in range(4 * quarter, total):
+        e = edges[j]
         key = keys[e]
         placed[fourth[key]] = e
         fourth[key] += 1
-    return placed[:_edge_count(height, width)]
+    return placed
 
 
 @njit(cache=True, nogil=True)
@@ -752,15 +782,16 @@ def _uint16_keys(image):
 
 @njit(cache=True, nogil=True)
 def _rooted_tree(image, key_count, similarity_of_key, out, split):
-    """Edge keys -> counting sort -> Kruskal -> depth-first rooting at pixel 0, in one kernel
-    (one compiled object to load instead of four: ~10 ms each for a single-shot decode).
+    """Edge keys -> the edges Kruskal needs (:func:`_kept_edges`) -> counting sort ->
+    Kruskal -> depth-first rooting at pixel 0, in one kernel (one compiled object to load
+    instead of five: ~10 ms each for a single-shot decode).
     Writes ``out`` (:func:`_tree_arrays`) and, when ``split`` has room for them, the
     two-thread walk's split of the row layout (:func:`_balanced_subtree`); returns the
     number of nodes reached."""
     height, width = image.shape[0], image.shape[1]
     keys = np.empty(2 * height * width, dtype=np.int32)
     _edge_keys(image, keys, key_count)
-    sorted_edges = _counting_sorted_edges(keys, height, width, key_count)
+    sorted_edges = _counting_sorted_edges(keys, _kept_edges(keys, height, width), key_count)
     bits = _kruskal_tree_bits(sorted_edges, height, width)
     reached = _depth_first(bits, keys, height, width, 0, similarity_of_key, out)
     if split.shape[0] >= 2 and reached == height * width and reached >= 2:
@@ -818,7 +849,9 @@ def build_tree(guide: np.ndarray, *, sigma: float = 0.1 * 255, median_size: int 
     Edge weight = largest absolute channel difference between the two neighbours, in
     8-bit units (uint16 differences are divided by 257).  Kruskal's algorithm runs on the
     edges in stable key order (a counting sort), so ties, including the
-    many zero-weight edges of flat regions, are broken deterministically by edge id.
+    many zero-weight edges of flat regions, are broken deterministically by edge id; the
+    edges that come last on a 2 x 2 block's cycle in that order, which it would reject,
+    are left out beforehand.
     """
     image, key_count, similarity_of_key = _tree_inputs(guide, sigma=sigma, median_size=median_size)
     out = _tree_arrays(image.shape[0] * image.shape[1])

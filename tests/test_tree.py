@@ -162,7 +162,44 @@ def test_edges_are_sorted_stably_by_key(shape, dtype):
     inside = np.where(edge_ids % 2 == 0, pixel % width < width - 1, pixel // width < height - 1)
     assert np.all(keys[~inside] == key_count) and np.all(keys[inside] < key_count)
     expected = edge_ids[inside][np.argsort(keys[inside], kind="stable")]
-    np.testing.assert_array_equal(tree_module._counting_sorted_edges(keys, height, width, key_count), expected)
+    got = tree_module._counting_sorted_edges(keys, edge_ids[inside].astype(np.int32), key_count)
+    np.testing.assert_array_equal(got, expected)
+
+
+def _block_cycle_maxima(keys, height, width):
+    """Edge ids that come last, by (key, id), on some 2 x 2 block's 4-cycle (plain numpy)."""
+    ids = np.arange(2 * height * width).reshape(height, width, 2)
+    order = (keys.reshape(height, width, 2).astype(np.int64) << 32) | ids
+    corners = [order[:-1, :-1, 0], order[:-1, :-1, 1], order[:-1, 1:, 1], order[1:, :-1, 0]]
+    return np.unique(np.maximum.reduce(corners).ravel() & 0xFFFFFFFF)
+
+
+@pytest.mark.parametrize("shape", [(1, 1), (1, 7), (7, 1), (2, 2), (3, 5), (17, 23), (40, 31)])
+@pytest.mark.parametrize("dtype", [np.uint8, np.uint16])
+def test_kruskal_skips_the_block_cycle_maxima_and_keeps_its_tree(shape, dtype):
+    # The edge that comes last on a 2 x 2 block's cycle is never a tree edge (the cycle
+    # property), so Kruskal is given every other grid edge, in id order, and must build
+    # exactly the tree it builds from all edges.
+    rng = np.random.default_rng(sum(shape) + 7)
+    top = 4 if dtype == np.uint8 else 2000          # few keys: many ties, broken by edge id
+    image = rng.integers(0, top, shape + (3,)).astype(dtype)
+    height, width = shape
+    key_count = 256 if dtype == np.uint8 else 65536
+    keys = np.empty(2 * height * width, np.int32)
+    tree_module._edge_keys(image, keys, key_count)
+    edge_ids = np.arange(2 * height * width)
+    inside = edge_ids[keys < key_count]
+    if height > 1 and width > 1:
+        dropped = _block_cycle_maxima(keys, height, width)
+        assert dropped.size >= (height - 1) * (width - 1) // 2
+    else:
+        dropped = np.zeros(0, np.int64)
+    kept = tree_module._kept_edges(keys, height, width)
+    np.testing.assert_array_equal(kept, np.setdiff1d(inside, dropped))
+    from_kept = tree_module._counting_sorted_edges(keys, kept, key_count)
+    from_all = tree_module._counting_sorted_edges(keys, inside.astype(np.int32), key_count)
+    np.testing.assert_array_equal(tree_module._kruskal_tree_bits(from_kept, height, width),
+                                  tree_module._kruskal_tree_bits(from_all, height, width))
 
 
 def test_flat_image_keeps_zero_weight_edges():
