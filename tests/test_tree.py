@@ -145,18 +145,22 @@ def test_tree_is_a_minimum_spanning_tree(levels, median_size):
     assert total == pytest.approx(prim_minimum_weight(tree.height * tree.width, weights), abs=1e-9)
 
 
+def _random_edge_keys(shape, dtype, *, seed, levels):
+    """Edge keys of a random RGB image of ``levels`` grey levels (few: long runs of tied keys)."""
+    image = np.random.default_rng(seed).integers(0, levels, shape + (3,)).astype(dtype)
+    key_count = 256 if dtype == np.uint8 else 65536
+    keys = np.empty(2 * shape[0] * shape[1], np.int32)
+    tree_module._edge_keys(image, keys, key_count)
+    return keys, key_count
+
+
 @pytest.mark.parametrize("shape", [(1, 1), (1, 2), (2, 1), (1, 9), (9, 1), (2, 2), (3, 5), (17, 23), (40, 31)])
 @pytest.mark.parametrize("dtype", [np.uint8, np.uint16])
 def test_edges_are_sorted_stably_by_key(shape, dtype):
     # The 8-bit path interleaves four quarters of the edges; both must equal a stable
     # sort of the grid's edges by key (Kruskal's ties are broken by edge id).
-    rng = np.random.default_rng(sum(shape))
-    top = 6 if dtype == np.uint8 else 3000          # few keys: long runs of ties
-    image = rng.integers(0, top, shape + (3,)).astype(dtype)
+    keys, key_count = _random_edge_keys(shape, dtype, seed=sum(shape), levels=6 if dtype == np.uint8 else 3000)
     height, width = shape
-    key_count = 256 if dtype == np.uint8 else 65536
-    keys = np.empty(2 * height * width, np.int32)
-    tree_module._edge_keys(image, keys, key_count)
     edge_ids = np.arange(2 * height * width)
     pixel = edge_ids // 2
     inside = np.where(edge_ids % 2 == 0, pixel % width < width - 1, pixel // width < height - 1)
@@ -180,13 +184,8 @@ def test_kruskal_skips_the_block_cycle_maxima_and_keeps_its_tree(shape, dtype):
     # The edge that comes last on a 2 x 2 block's cycle is never a tree edge (the cycle
     # property), so Kruskal is given every other grid edge, in id order, and must build
     # exactly the tree it builds from all edges.
-    rng = np.random.default_rng(sum(shape) + 7)
-    top = 4 if dtype == np.uint8 else 2000          # few keys: many ties, broken by edge id
-    image = rng.integers(0, top, shape + (3,)).astype(dtype)
+    keys, key_count = _random_edge_keys(shape, dtype, seed=sum(shape) + 7, levels=4 if dtype == np.uint8 else 2000)
     height, width = shape
-    key_count = 256 if dtype == np.uint8 else 65536
-    keys = np.empty(2 * height * width, np.int32)
-    tree_module._edge_keys(image, keys, key_count)
     edge_ids = np.arange(2 * height * width)
     inside = edge_ids[keys < key_count]
     if height > 1 and width > 1:
