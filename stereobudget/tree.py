@@ -247,8 +247,9 @@ def _kept_edges(keys, height, width):
             right = _order_value(keys, 2 * p + 3)
             bottom = _order_value(keys, 2 * (p + width))
             last[max(max(top, left), max(right, bottom)) & 0xFFFFFFFF] = 1
-    # Compacted without a branch per edge: every id is written, only the kept ones advance.
-    edges = np.empty(_edge_count(height, width) + 2, dtype=np.int32)
+    # Compacted without a branch per edge: every id is written, only the kept ones advance
+    # (so the last write may land one past the grid's edges).
+    edges = np.empty(_edge_count(height, width) + 1, dtype=np.int32)
     kept = 0
     for r in range(height):
         for c in range(width):
