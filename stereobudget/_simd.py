@@ -344,18 +344,21 @@ MAX_PERIOD_LANES = max(period_lanes(b) for b in range(1, MAX_PERIOD_CHANNELS + 1
 
 
 @intrinsic
-def periodic_corner_sum(typingctx, rows, corner_index, corner_weight, count, target):
+def periodic_corner_sum(typingctx, rows, corner_index, corner_weight, count, target, eps):
     """``target[i] = sum over the 8 corners c of corner_weight[c] * rows[corner_index[c], i % B]``
     for ``i`` below ``count`` rounded up to whole periods (at least one); returns the
-    period, ``lcm(B, 8)`` lanes, or 0 (nothing written) when ``B = rows.shape[1]`` is not
-    in ``1 .. 16``.
+    period, ``lcm(B, 8)`` lanes, negated when one of the sums that layers below ``count``
+    use (channels ``< min(B, count)``) is ``<= eps``, or 0 (nothing written) when
+    ``B = rows.shape[1]`` is not in ``1 .. 16``.
 
     The weight grid's B channels repeat along the layers (:class:`stereobudget.bilateral.SliceGrids`).
     Summed as scalars and tiled into the layers element by element, each vector the
     division then read waited for the scalar stores it spans to reach the cache.  Here
     each corner's channels are one 16-lane load, the 8 products are summed in registers
     (corner order, each product and sum rounded to float32: the scalar loop's sum, bit
-    for bit), and every output vector is a shuffle of the sum, stored whole.
+    for bit), and every output vector is a shuffle of the sum, stored whole.  The slice
+    needs to know whether a layer's weight is light (its fallback); compared here, in
+    the register that holds them, the B sums need no loads of their own.
 
     ``corner_index`` (8,) int64 and ``corner_weight`` (8,) float32 are C-contiguous;
     ``rows`` (cells, B) float32 C-contiguous must be followed in memory by
@@ -364,9 +367,9 @@ def periodic_corner_sum(typingctx, rows, corner_index, corner_weight, count, tar
     multiple of ``lcm(B, 8)`` floats.  No index is checked.
     """
     if not (_is_array(rows, 2) and _is_array(corner_index, 1, types.int64) and _is_array(corner_weight, 1)
-            and isinstance(count, types.Integer) and _is_array(target, 1)):
+            and isinstance(count, types.Integer) and _is_array(target, 1) and isinstance(eps, types.Float)):
         return None
-    signature = types.int64(rows, corner_index, corner_weight, count, target)
+    signature = types.int64(rows, corner_index, corner_weight, count, target, eps)
 
     def codegen(context, builder, sig, args):
         f32, i32, i64 = ir.FloatType(), ir.IntType(32), ir.IntType(64)
@@ -399,6 +402,14 @@ def periodic_corner_sum(typingctx, rows, corner_index, corner_weight, count, tar
             product = builder.fmul(weight, values)
             total = product if total is None else builder.fadd(total, product)
 
+        # Whether a channel of the layers below ``count`` is light: lanes < min(B, count) <= eps.
+        threshold = _broadcast(builder, context.cast(builder, args[5], sig.args[5], types.float32), wide)
+        light_lanes = builder.zext(builder.bitcast(builder.fcmp_ordered("<=", total, threshold),
+                                                   ir.IntType(MAX_PERIOD_CHANNELS)), i32)
+        used = builder.trunc(builder.select(builder.icmp_signed("<", channels, count), channels, count), i32)
+        used_mask = builder.sub(builder.shl(ir.Constant(i32, 1), used), ir.Constant(i32, 1))
+        light = builder.icmp_unsigned("!=", builder.and_(light_lanes, used_mask), ir.Constant(i32, 0))
+
         one = ir.Constant(i64, 1)
         # One case per channel count: its period's shuffles are constants.
         cases_end = builder.append_basic_block("period.cases_end")
@@ -424,7 +435,7 @@ def periodic_corner_sum(typingctx, rows, corner_index, corner_weight, count, tar
                 return ()
 
             _counted_loop(builder, f"period.b{b}", ir.Constant(i64, 0), whole, (), store_period)
-            periods.append((ir.Constant(i64, lanes), builder.block))
+            periods.append((builder.select(light, ir.Constant(i64, -lanes), ir.Constant(i64, lanes)), builder.block))
             builder.branch(done)
         builder.position_at_end(cases_end)  # not reached: channels is in 1 .. 16 here
         builder.branch(done)

@@ -260,7 +260,11 @@ def _blur_base_grid(grid: np.ndarray, geom: GridGeometry) -> tuple:
 
 @njit(cache=True, inline="always")
 def _bilinear(grid2d, y0, ty, x0, tx, channel):
-    """Bilinear value of channel ``channel`` of a (GY, GX, K) grid (the spatial-only fallback)."""
+    """Bilinear value of channel ``channel`` of a (GY, GX, K) grid (the spatial-only fallback).
+
+    In float64: ``1 - ty`` promotes the weights, and with them the sum (the vectorised
+    fallback in :func:`_divide_or_fall_back` repeats this arithmetic term by term).
+    """
     acc = np.float32(0.0)
     for a in range(2):
         wy = ty if a else 1 - ty
@@ -316,32 +320,65 @@ def _add_corners_from(rows, corner_index, corner_weight, lo, n, acc):
 
 
 @njit(cache=True, inline="always")
-def _divide_or_fall_back(o, den, n_out, band_start, layer_base, spatial_val, spatial_base, spatial_band,
+def _divide_or_fall_back(o, den, n_out, band_start, base_light, layer_base, spatial_val, spatial_base, spatial_band,
                          y0, ty, x0, tx, eps, missing_value):
     """o[i] /= den[i] for i < n_out; layers whose weight is below ``eps`` take the spatial-only fallback.
 
-    Almost every pixel has weight in every layer, so the check is one vectorised count
-    and the division one branch-free loop; the per-layer branch runs only when it must.
+    Every layer is divided in one branch-free pass; light layers (weight <= eps) are then
+    overwritten.  Below ``band_start`` the weights repeat a few base channels, and
+    ``base_light`` (their check, made where they were summed) says whether any is light:
+    rarely, and then those layers are redone one by one.  From ``band_start`` on, the
+    left border's missing samples make runs of layers light (on Teddy 8 % of the
+    pixels): one select over the run, whose fallback sums vectorise.
     """
-    # A count, not a running minimum: an integer sum vectorises, a float min chain does not.
-    light = 0
     for i in range(n_out):
-        light += den[i] <= eps
-    if light == 0:
-        for i in range(n_out):
-            o[i] /= den[i]
+        o[i] /= den[i]
+    base_end = min(band_start, n_out)
+    if base_light:
+        for i in range(base_end):
+            if den[i] <= eps:
+                o[i] = _fallback(spatial_val, spatial_base, y0, ty, x0, tx, i, layer_base[i], eps, missing_value)
+    if base_end == n_out:
         return
-    for i in range(n_out):
-        d = den[i]
-        if d > eps:
-            o[i] /= d
-        else:
-            sv = _bilinear(spatial_val, y0, ty, x0, tx, i)
-            if i >= band_start:
-                sw = _bilinear(spatial_band, y0, ty, x0, tx, i)
-            else:
-                sw = _bilinear(spatial_base, y0, ty, x0, tx, layer_base[i])
-            o[i] = sv / sw if sw > eps else missing_value
+    # The light layers' first and last index (integer min / max reductions vectorise).
+    first, last = n_out, -1
+    for i in range(base_end, n_out):
+        is_light = den[i] <= eps
+        first = min(first, i if is_light else n_out)
+        last = max(last, i if is_light else -1)
+    if last < 0:
+        return
+    # _bilinear's float64 weights and sums, term by term in its order, over that run.
+    wy0, wy1 = 1 - ty, np.float64(ty)
+    wx0, wx1 = 1 - tx, np.float64(tx)
+    w00, w01, w10, w11 = wy0 * wx0, wy0 * wx1, wy1 * wx0, wy1 * wx1
+    last += 1
+    v00, v01 = spatial_val[y0, x0, first:last], spatial_val[y0, x0 + 1, first:last]
+    v10, v11 = spatial_val[y0 + 1, x0, first:last], spatial_val[y0 + 1, x0 + 1, first:last]
+    b00, b01 = spatial_band[y0, x0, first:last], spatial_band[y0, x0 + 1, first:last]
+    b10, b11 = spatial_band[y0 + 1, x0, first:last], spatial_band[y0 + 1, x0 + 1, first:last]
+    out = o[first:last]
+    weight = den[first:last]
+    for i in range(out.shape[0]):
+        sv = 0.0 + w00 * v00[i]
+        sv += w01 * v01[i]
+        sv += w10 * v10[i]
+        sv += w11 * v11[i]
+        sw = 0.0 + w00 * b00[i]
+        sw += w01 * b01[i]
+        sw += w10 * b10[i]
+        sw += w11 * b11[i]
+        fallback = sv / sw if sw > eps else missing_value
+        out[i] = out[i] if weight[i] > eps else fallback
+
+
+@njit(cache=True, inline="always")
+def _fallback(spatial_val, spatial_weight, y0, ty, x0, tx, value_channel, weight_channel, eps, missing_value):
+    """The spatial-only fill of one light layer: its value and weight grids summed over
+    intensity, sliced bilinearly and divided (``missing_value`` where that weight is light too)."""
+    sv = _bilinear(spatial_val, y0, ty, x0, tx, value_channel)
+    sw = _bilinear(spatial_weight, y0, ty, x0, tx, weight_channel)
+    return sv / sw if sw > eps else missing_value
 
 
 class SliceGrids(NamedTuple):
@@ -456,19 +493,27 @@ def slice_scratch(num_layers):
 
 
 @njit(cache=True, inline="always")
-def _layer_weights(base_weights, corner_index, corner_weight, n, den):
+def _layer_weights(base_weights, corner_index, corner_weight, n, den, eps):
     """``den[i]`` = the base weights sliced in layer ``i``'s channel ``i % B``, for ``i < n``
     (and whatever fills a last period past ``n``: ``den`` holds ``n + MAX_PERIOD_LANES``).
+    Returns whether one of those layers' weights is ``<= eps``.
 
     Up to 16 channels, in vectors (:func:`stereobudget._simd.periodic_corner_sum`);
     more (a per-layer weight grid, no repetition), as a corner sum and a tiling.
     """
     if n <= 0:
-        return
-    if periodic_corner_sum(base_weights, corner_index, corner_weight, n, den) == 0:
-        channels = base_weights.shape[1]
-        _add_corners_from(base_weights, corner_index, corner_weight, 0, min(channels, n), den)
-        _tile_into(den[:channels], den, n)
+        return False
+    period = periodic_corner_sum(base_weights, corner_index, corner_weight, n, den, eps)
+    if period != 0:
+        return period < 0
+    channels = base_weights.shape[1]
+    used = min(channels, n)
+    _add_corners_from(base_weights, corner_index, corner_weight, 0, used, den)
+    light = False
+    for i in range(used):
+        light |= den[i] <= eps
+    _tile_into(den[:channels], den, n)
+    return light
 
 
 @njit(cache=True, inline="always")
@@ -503,11 +548,11 @@ def _slice_layers(grids, y0, ty, x0, tx, z0, tz, o, n, den, corner_index, band_i
     _trilinear_corners(y0, ty, x0, tx, z0, tz, grids.gx, grids.gz, corner_weight, corner_index)
     _add_corners_from(grids.values, corner_index, corner_weight, 0, n, o)
     start = grids.first_band_layer[x0]
-    _layer_weights(grids.base_weights, corner_index, corner_weight, min(start, n), den)
+    base_light = _layer_weights(grids.base_weights, corner_index, corner_weight, min(start, n), den, grids.eps)
     if start < n:
         _trilinear_corners(y0, ty, x0, tx, z0, tz, grids.band, grids.gz, corner_weight, band_index)
         _add_corners_from(grids.band_weights, band_index, corner_weight, start, n, den)
-    _divide_or_fall_back(o, den, n, start, grids.layer_base, grids.spatial_values, grids.spatial_base,
+    _divide_or_fall_back(o, den, n, start, base_light, grids.layer_base, grids.spatial_values, grids.spatial_base,
                          grids.spatial_band, y0, ty, x0, tx, grids.eps, grids.missing_value)
 
 

@@ -2,6 +2,7 @@
 
 import numpy as np
 import pytest
+from numba import njit
 
 from stereobudget import bilateral
 from stereobudget.container import encode_image
@@ -61,6 +62,63 @@ def test_layers_out_of_reach_are_written_as_missing_bit_identically(scene, monke
     monkeypatch.setattr(bilateral, "_lattice_stride", lambda *args: 0)
     per_layer = bilateral.filled_sparse_dsi(left, guide, rows, cols, values, **kwargs)
     np.testing.assert_array_equal(split, per_layer)
+
+
+@njit(cache=True)
+def _slice_by_layer(grids, guide, out, light):
+    """The fill stated layer by layer: each layer's values over its weight, or where that
+    weight is light (<= eps) the spatial-only fallback; ``light`` counts the light layers
+    below and from the band's first layer."""
+    h, w = guide.shape
+    n_out = out.shape[2]
+    den, corner_index, band_index, corner_weight = bilateral.slice_scratch(n_out)
+    for y in range(h):
+        for x in range(w):
+            o = out[y, x]
+            y0, ty = bilateral._hat(y * grids.inv_cell_s, grids.gy)
+            x0, tx = bilateral._hat(x * grids.inv_cell_s, grids.gx)
+            z0, tz = bilateral._hat(guide[y, x] * grids.inv_cell_r, grids.gz)
+            n = min(grids.first_missing_layer[x0], n_out)
+            bilateral._trilinear_corners(y0, ty, x0, tx, z0, tz, grids.gx, grids.gz, corner_weight, corner_index)
+            bilateral._add_corners_from(grids.values, corner_index, corner_weight, 0, n, o)
+            start = grids.first_band_layer[x0]
+            bilateral._layer_weights(grids.base_weights, corner_index, corner_weight, min(start, n), den, grids.eps)
+            if start < n:
+                bilateral._trilinear_corners(y0, ty, x0, tx, z0, tz, grids.band, grids.gz, corner_weight,
+                                             band_index)
+                bilateral._add_corners_from(grids.band_weights, band_index, corner_weight, start, n, den)
+            for i in range(n):
+                if den[i] > grids.eps:
+                    o[i] = o[i] / den[i]
+                    continue
+                light[0 if i < start else 1] += 1
+                sv = bilateral._bilinear(grids.spatial_values, y0, ty, x0, tx, i)
+                if i >= start:
+                    sw = bilateral._bilinear(grids.spatial_band, y0, ty, x0, tx, i)
+                else:
+                    sw = bilateral._bilinear(grids.spatial_base, y0, ty, x0, tx, grids.layer_base[i])
+                o[i] = sv / sw if sw > grids.eps else grids.missing_value
+            for i in range(n, n_out):
+                o[i] = grids.missing_value
+
+
+@pytest.mark.parametrize("stride, offset_x, min_disp, num_disp", [(5, 0, 0, 64), (3, 2, 4, 40), (4, 1, 0, 100)])
+def test_light_layers_take_the_spatial_fallback_layer_by_layer(scene, stride, offset_x, min_disp, num_disp):
+    # The slice divides every layer and then redoes the light ones (a run near the left
+    # border, the rare base layer); the result must be the per-layer definition's, bit for bit.
+    pattern = SamplingPattern("grid", stride, stride, offset_x, 1)
+    left, guide, rows, cols, values, _ = _inputs(scene, pattern)
+    guide = guide.copy()
+    # Bright dots off the lattice rows: no sample shares their intensity, so every layer
+    # of theirs, base or band, is light.
+    guide[2::stride, 60::23] = 255.0
+    grids = bilateral.sparse_dsi_grids(left, guide, rows, cols, values, min_disp=min_disp, num_disp=num_disp,
+                                       sigma_s=2.0 * stride, sigma_r=15.0, truncation=15.0)
+    expected = np.empty((72, 150, num_disp), np.float32)
+    light = np.zeros(2, np.int64)
+    _slice_by_layer(grids, guide, expected, light)
+    assert light[0] > 0 and light[1] > 0
+    np.testing.assert_array_equal(bilateral.slice_volume(guide, grids), expected)
 
 
 def test_lattice_detection_rejects_other_layouts(scene):

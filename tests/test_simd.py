@@ -103,8 +103,8 @@ def test_blend_rows_first_min_is_the_blend_then_the_first_minimum(layers, compet
 
 
 @njit(cache=True)
-def _periodic_corner_sum(rows, corner_index, corner_weight, count, target):
-    return periodic_corner_sum(rows, corner_index, corner_weight, count, target)
+def _periodic_corner_sum(rows, corner_index, corner_weight, count, target, eps):
+    return periodic_corner_sum(rows, corner_index, corner_weight, count, target, eps)
 
 
 @njit(cache=True)
@@ -132,7 +132,7 @@ def test_periodic_corner_sum_is_the_corner_sum_repeated(channels):
         corner_index[rng.integers(8)] = cells - 1  # the last row: its loads read the tail
         corner_weight = rng.random(8, dtype=np.float32)
         target = np.full(count + MAX_PERIOD_LANES, -1.0, np.float32)
-        written = _periodic_corner_sum(rows, corner_index, corner_weight, count, target)
+        written = _periodic_corner_sum(rows, corner_index, corner_weight, count, target, np.float32(0.0))
         if channels > MAX_PERIOD_CHANNELS:
             assert written == 0 and np.all(target == -1.0)  # the caller's scalar path
             continue
@@ -142,3 +142,14 @@ def test_periodic_corner_sum_is_the_corner_sum_repeated(channels):
         whole = -(-count // period) * period
         np.testing.assert_array_equal(target[:whole], sums[np.arange(whole) % channels])
         assert np.all(target[whole:] == -1.0)
+        # Negated when a sum the first `count` layers use is light (<= eps); the channels
+        # past min(B, count) and the lanes read past the row never count.
+        used = sums[:min(channels, count)]
+        for eps, light in ((used.min(), True), (np.nextafter(used.min(), np.float32(0)), False),
+                           (np.float32(np.inf), True)):
+            assert _periodic_corner_sum(rows, corner_index, corner_weight, count, target, eps) == \
+                (-period if light else period)
+        if count < channels:
+            unused = np.float32(sums[count:].min())
+            if unused < used.min():
+                assert _periodic_corner_sum(rows, corner_index, corner_weight, count, target, unused) == period
