@@ -128,8 +128,9 @@ class TreeLayout:
 # Guide preparation
 
 
-def _as_channels_last(guide: np.ndarray) -> np.ndarray:
-    """Validate the guide and return it as ``(H, W, C)`` uint8, uint16 or float32."""
+def _as_channels_last(guide: np.ndarray, *, check_finite: bool = True) -> np.ndarray:
+    """Validate the guide and return it as ``(H, W, C)`` uint8, uint16 or float32
+    (``check_finite=False``: the caller checks a float guide's values itself)."""
     if not isinstance(guide, np.ndarray):
         raise ImageReadError(f"guide must be a numpy array, got {type(guide).__name__}")
     if guide.ndim == 2:
@@ -140,10 +141,14 @@ def _as_channels_last(guide: np.ndarray) -> np.ndarray:
         return guide
     if guide.dtype.kind == "f":
         guide = guide.astype(np.float32, copy=False)
-        if not np.all(np.isfinite(guide)):
-            raise ImageReadError("guide contains NaN or infinite values")
+        if check_finite and not np.all(np.isfinite(guide)):
+            raise _non_finite_guide()
         return guide
     raise ImageReadError(f"guide dtype {guide.dtype} is not supported (use uint8, uint16 or float)")
+
+
+def _non_finite_guide() -> ImageReadError:
+    return ImageReadError("guide contains NaN or infinite values")
 
 
 def _median_filtered(guide: np.ndarray, median_size: int) -> np.ndarray:
@@ -722,15 +727,22 @@ def _median3_uint16_keys(image):
     exactly.  The keys are laid out per channel with a replicated column at both ends,
     so the median network (19 compare-exchanges, Paeth's) runs over contiguous runs of
     x and vectorises.
+
+    Returns the keys and the number of values that are not finite (the guide's check,
+    made in this pass over it instead of one of its own: 0.2 ms on Teddy's right guide).
     """
     h, w, channels = image.shape
     keys = np.empty((h, channels, w + 2), dtype=np.uint16)
     scale = np.float32(257.0)
+    non_finite = 0
     for y in prange(h):
         for c in range(channels):
             row = keys[y, c, 1:w + 1]
             for x in range(w):
-                row[x] = _key_of(image[y, x, c], scale)
+                value = image[y, x, c]
+                # v - v is 0 for a finite v and NaN otherwise: a count that vectorises.
+                non_finite += (value - value) != 0
+                row[x] = _key_of(value, scale)
             keys[y, c, 0] = keys[y, c, 1]
             keys[y, c, w + 1] = keys[y, c, w]
     out = np.empty((h, w, channels), dtype=np.uint16)
@@ -765,7 +777,7 @@ def _median3_uint16_keys(image):
                 median[x] = p4
             for x in range(w):
                 out[y, x, c] = median[x]
-    return out
+    return out, non_finite
 
 
 @njit(cache=True, parallel=True)
@@ -867,10 +879,13 @@ def _tree_inputs(guide, *, sigma, median_size):
         raise OptionError(f"sigma must be a positive number, got {sigma}")
     if median_size not in (0, 1) and (median_size < 3 or median_size % 2 == 0):
         raise OptionError(f"median_size must be 0, 1 or an odd number >= 3, got {median_size}")
-    image = _as_channels_last(guide)
-    if image.dtype == np.float32 and median_size == 3:
+    median_keys = median_size == 3 and isinstance(guide, np.ndarray) and guide.dtype.kind == "f"
+    image = _as_channels_last(guide, check_finite=not median_keys)
+    if median_keys:
         # Median and keys in one kernel on both threads (Teddy's right guide: 0.69 -> 0.40 ms).
-        image = _median3_uint16_keys(image)
+        image, non_finite = _median3_uint16_keys(image)
+        if non_finite:
+            raise _non_finite_guide()
     else:
         image = _median_filtered(image, int(median_size))
     if image.dtype != np.uint8 and image.dtype != np.uint16:

@@ -548,7 +548,7 @@ def test_bad_median_size(median_size):
 @pytest.mark.parametrize(
     "guide",
     [np.zeros((0, 4), np.uint8), np.zeros((4,), np.uint8), np.zeros((2, 2, 2, 2), np.uint8),
-     np.zeros((4, 4), np.int64), np.full((4, 4), np.nan, np.float32), [[1, 2], [3, 4]]],
+     np.zeros((4, 4), np.int64), np.full((4, 4), np.nan, np.float32), np.full((4, 4, 3), -np.inf), [[1, 2], [3, 4]]],
 )
 def test_bad_guide(guide):
     with pytest.raises(ImageReadError):
@@ -610,4 +610,8 @@ def test_float_guide_median_and_keys_in_one_kernel_equal_opencv_then_keys(shape)
     image = (rng.random(shape, dtype=np.float32) * 300 - 20).astype(np.float32)   # past both ends of the keys
     image[rng.random(shape) < 0.3] = 12.5       # ties, and a value whose key rounds half to even
     expected = tree_module._uint16_keys(tree_module._median_filtered(image, 3))
-    np.testing.assert_array_equal(tree_module._median3_uint16_keys(image), expected)
+    keys, non_finite = tree_module._median3_uint16_keys(image)
+    np.testing.assert_array_equal(keys, expected)
+    assert non_finite == 0
+    image[0, 0, 0], image[-1, -1, -1] = np.nan, -np.inf
+    assert tree_module._median3_uint16_keys(image)[1] == (1 if image.size == 1 else 2)
