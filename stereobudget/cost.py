@@ -57,6 +57,29 @@ def _luma(image):
     return out
 
 
+def float_and_gray(image: np.ndarray) -> tuple:
+    """``(to_float_image(image), to_gray(to_float_image(image)))`` with the same values,
+    for an 8-bit RGB image in one pass on both threads (numpy's conversion alone took
+    0.3 ms of each Teddy decode, on one thread); other images the two calls' way."""
+    if image.dtype == np.uint8 and image.ndim == 3 and image.shape[2] == 3:
+        h, w = image.shape[:2]
+        return _float_and_luma_u8(np.ascontiguousarray(image), np.empty((h, w, 3), np.float32),
+                                  np.empty((h, w), np.float32))
+    image_f32 = to_float_image(image)
+    return image_f32, to_gray(image_f32)
+
+
+@njit(cache=True, parallel=True)
+def _float_and_luma_u8(image, out, gray):
+    red, green, blue = np.float32(0.299), np.float32(0.587), np.float32(0.114)
+    for y in prange(image.shape[0]):
+        for x in range(image.shape[1]):
+            r, g, b = np.float32(image[y, x, 0]), np.float32(image[y, x, 1]), np.float32(image[y, x, 2])
+            out[y, x, 0], out[y, x, 1], out[y, x, 2] = r, g, b
+            gray[y, x] = red * r + green * g + blue * b
+    return out, gray
+
+
 @njit(cache=True, inline="always")
 def pixel_cost(left_pixel, right_pixel, truncation):
     """Eq. (2) of the paper for one pixel pair: mean absolute channel difference, truncated.

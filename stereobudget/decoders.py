@@ -25,7 +25,8 @@ from dataclasses import dataclass, field, asdict, replace
 
 import numpy as np
 from .container import SampleSet
-from .cost import DEFAULT_TRUNCATION, noise_level, noise_level_of_gray, sample_row_steps, to_float_image, to_gray
+from .cost import (DEFAULT_TRUNCATION, float_and_gray, noise_level, noise_level_of_gray, sample_row_steps,
+                   to_float_image, to_gray)
 from .sampling import grid_shape
 from .bilateral import filled_sparse_dsi, release_grids, sparse_dsi_grids
 from .limits import volume_layers
@@ -415,8 +416,7 @@ def _decode_whole_frame(left, samples, *, max_disp, min_disp, method, params, ma
     timer = _Timer()
     num_disp = int(max_disp - min_disp + 1)
     with timer("prepare"):
-        left_f = to_float_image(left)
-        guide = to_gray(left_f)
+        left_f, guide = float_and_gray(left)
         params = adapt_to_noise(params, left, method=method, gray=guide)
     # I1's tree is built by each method, with the right image's when it has one (concurrently).
     # An 8-bit I1 gives the same tree as its float copy, by a counting sort over 256 keys

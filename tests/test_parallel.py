@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from stereobudget._parallel import fill_zero, take
-from stereobudget.cost import to_gray
+from stereobudget.cost import float_and_gray, to_float_image, to_gray
 from stereobudget.refine import _stable_levels
 from stereobudget.tree import _uint16_keys
 
@@ -32,6 +32,16 @@ def test_luma_kernel_is_numpys_float32_expression(shape):
     np.testing.assert_array_equal(to_gray(image), expected)
     # float64 input still goes through numpy (then float32), as documented.
     assert to_gray(image.astype(np.float64)).dtype == np.float32
+
+
+@pytest.mark.parametrize("shape, dtype", [((37, 41, 3), np.uint8), ((1, 1, 3), np.uint8), ((5, 3, 3), np.uint16),
+                                          ((9, 7), np.uint8), ((4, 4, 1), np.uint8)])
+def test_float_and_gray_are_the_float_image_and_its_luma(shape, dtype):
+    image = np.random.default_rng(7).integers(0, np.iinfo(dtype).max, shape, endpoint=True).astype(dtype)
+    image_f32, gray = float_and_gray(image)
+    np.testing.assert_array_equal(image_f32, to_float_image(image))
+    np.testing.assert_array_equal(gray, to_gray(to_float_image(image)))
+    assert image_f32.dtype == gray.dtype == np.float32
 
 
 def test_uint16_keys_round_half_to_even_and_clip_like_numpy():
