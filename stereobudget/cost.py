@@ -33,14 +33,20 @@ def to_float_image(image: np.ndarray) -> np.ndarray:
     return np.ascontiguousarray(img, dtype=np.float32)
 
 
+#: Rec. 601 luma weights of R, G and B, float32: every gray image of the library sums
+#: ``red * R + green * G + blue * B`` with them, in that order (numpy's and the kernels' alike).
+LUMA_WEIGHTS = (np.float32(0.299), np.float32(0.587), np.float32(0.114))
+
+
 def to_gray(image_f32: np.ndarray) -> np.ndarray:
     """Luma (Rec. 601) of a float32 (H, W, C) RGB image; a one-channel image is returned as (H, W)."""
     if image_f32.shape[2] == 1:
         return np.ascontiguousarray(image_f32[:, :, 0])
     if image_f32.dtype == np.float32:
         return _luma(image_f32)
+    red, green, blue = LUMA_WEIGHTS
     r, g, b = image_f32[:, :, 0], image_f32[:, :, 1], image_f32[:, :, 2]
-    return (np.float32(0.299) * r + np.float32(0.587) * g + np.float32(0.114) * b).astype(np.float32)
+    return (red * r + green * g + blue * b).astype(np.float32)
 
 
 @njit(cache=True, parallel=True)
@@ -50,7 +56,7 @@ def _luma(image):
     on Teddy, five times per decode)."""
     h, w = image.shape[0], image.shape[1]
     out = np.empty((h, w), dtype=np.float32)
-    red, green, blue = np.float32(0.299), np.float32(0.587), np.float32(0.114)
+    red, green, blue = LUMA_WEIGHTS
     for y in prange(h):
         for x in range(w):
             out[y, x] = red * image[y, x, 0] + green * image[y, x, 1] + blue * image[y, x, 2]
@@ -71,7 +77,7 @@ def float_and_gray(image: np.ndarray) -> tuple:
 
 @njit(cache=True, parallel=True)
 def _float_and_luma_u8(image, out, gray):
-    red, green, blue = np.float32(0.299), np.float32(0.587), np.float32(0.114)
+    red, green, blue = LUMA_WEIGHTS
     for y in prange(image.shape[0]):
         for x in range(image.shape[1]):
             r, g, b = np.float32(image[y, x, 0]), np.float32(image[y, x, 1]), np.float32(image[y, x, 2])
