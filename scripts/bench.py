@@ -209,8 +209,9 @@ def teddy_benchmark(data_dir: Path, *, repeats: int, methods=("sparse", "hybrid"
             # once they sleep, as it runs on its own (it would be ~25 % slower among them).
             time.sleep(0.05)
             # But after the pause the idle vCPUs must be woken, which a VM's host may take
-            # its time over: the first call pays for it (a Firecracker guest, 2026-12-03:
-            # 0.5 ms more in the median, up to 6 ms in single calls).  The ratio takes the
+            # its time over: the first call pays for it (a Firecracker guest, 2026-12-03: in
+            # this loop 10.96 against 10.47 ms, medians of 30; SGBM alone after 50 ms sleeps
+            # 16.7 against 10.4 ms back to back, docs/performance.md).  The ratio takes the
             # second call, as the decode it compares with runs right after SGBM, with both
             # vCPUs awake: the steady state of a process matching a stream of frames.
             t = time.perf_counter()
