@@ -203,11 +203,13 @@ def test_lattice_splat_in_row_parts_is_bit_identical(scene, monkeypatch, parts):
     lattice_parts = bilateral._lattice_parts
 
     def parts_of(sample_rows, inv_cs, gy, _threads):
-        bounds, shared = lattice_parts(sample_rows, inv_cs, gy, parts)
+        bounds, shared, zeroed = lattice_parts(sample_rows, inv_cs, gy, parts)
         chosen.append(len(bounds) - 1)
-        return bounds, shared
+        return bounds, shared, zeroed
 
     monkeypatch.setattr(bilateral, "_lattice_parts", parts_of)
+    # The lattice path zeroes its grids itself: hand it garbage to prove it.
+    monkeypatch.setattr(bilateral, "empty_volume", lambda shape: np.full(shape, np.nan, np.float32))
     split = bilateral.filled_sparse_dsi(left, guide, rows, cols, values, **kwargs)
     assert chosen == [parts]
     monkeypatch.setattr(bilateral, "_lattice_stride", lambda *args: 0)
@@ -219,14 +221,16 @@ def test_lattice_parts_keep_shared_cells_between_neighbours():
     sample_rows = np.arange(2, 72, 5, dtype=np.int64)         # 14 rows, cells of 10 px
     cells = np.minimum(np.floor(sample_rows * 0.1).astype(int), 7)
     for parts in (2, 3, 4, 8):
-        bounds, shared = bilateral._lattice_parts(sample_rows, 0.1, 9, parts)
+        bounds, shared, zeroed = bilateral._lattice_parts(sample_rows, 0.1, 9, parts)
         assert bounds[0] == 0 and bounds[-1] == len(sample_rows) and np.all(np.diff(bounds) >= 2)
         for p in range(1, len(bounds) - 2):                    # a part never reaches two parts up
             assert cells[bounds[p + 1]] > cells[bounds[p] - 1] + 1
         # Each part shares the cells the part above reaches: up to its last row's cell + 1.
         assert shared[0] == -1 and list(shared[1:]) == [cells[b - 1] + 1 for b in bounds[1:-1]]
-    bounds, shared = bilateral._lattice_parts(sample_rows[:3], 0.1, 9, 2)
-    assert list(bounds) == [0, 3] and list(shared) == [-1]   # too short to split: one part
+        # Every row of cells is zeroed by exactly one part, the one whose first loop writes it.
+        assert list(zeroed) == [0] + [s + 1 for s in shared[1:]] + [9]
+    bounds, shared, zeroed = bilateral._lattice_parts(sample_rows[:3], 0.1, 9, 2)
+    assert list(bounds) == [0, 3] and list(shared) == [-1] and list(zeroed) == [0, 9]  # too short to split
 
 
 def test_base_weights_end_in_zero_cells_and_are_reused_by_the_next_fill(scene):
