@@ -3,7 +3,7 @@ import numpy as np
 import pytest
 
 from stereobudget.container import SampleSet, encode_image
-from stereobudget.lowpass import _sample_values_f32, gaussian_taps, lowpass_interpolation
+from stereobudget.lowpass import _sample_values_f32, gaussian_lowpass, gaussian_taps, lowpass_interpolation
 from stereobudget.sampling import SamplingPattern
 
 
@@ -62,3 +62,17 @@ def test_non_grid_patterns_take_the_impulse_path():
     assert isinstance(samples, SampleSet) and not samples.pattern.is_regular_grid
     expected, _ = _impulse_blur(samples, 2.0)
     np.testing.assert_allclose(lowpass_interpolation(samples, sigma=2.0), expected, atol=2e-3)
+
+
+@pytest.mark.parametrize("shape, sigma", [((37, 45, 3), 2.5), ((37, 45, 3), 1.5), ((7, 5, 3), 2.5),
+                                          ((2, 2, 3), 5.0), ((1, 9, 3), 2.5), ((300, 9, 1), 1.0),
+                                          ((30, 40), 3.5)])
+def test_gaussian_lowpass_is_opencvs_reflected_blur(shape, sigma):
+    # The same taps and border as cv2.GaussianBlur(BORDER_REFLECT), summed on every thread:
+    # equal to float rounding, also where the kernel is wider than the image (reflected
+    # more than once) and where the rows are cut into several bands (300 rows at sigma 1).
+    image = (np.random.default_rng(7).random(shape) * 255).astype(np.float32)
+    expected = cv2.GaussianBlur(image, (0, 0), sigmaX=sigma, sigmaY=sigma, borderType=cv2.BORDER_REFLECT)
+    got = gaussian_lowpass(image, sigma=sigma)
+    assert got.shape == image.shape and got.dtype == np.float32
+    np.testing.assert_allclose(got, expected.reshape(shape), rtol=0, atol=2e-4)
