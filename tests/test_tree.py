@@ -146,12 +146,17 @@ def test_tree_is_a_minimum_spanning_tree(levels, median_size):
 
 
 def _random_edge_keys(shape, dtype, *, seed, levels):
-    """Edge keys of a random RGB image of ``levels`` grey levels (few: long runs of tied keys)."""
+    """Edge keys of a random RGB image of ``levels`` grey levels (few: long runs of tied
+    keys), in the tree kernel's uint16 with its outside key, and the grid's inner edges."""
     image = np.random.default_rng(seed).integers(0, levels, shape + (3,)).astype(dtype)
     key_count = 256 if dtype == np.uint8 else 65536
-    keys = np.empty(2 * shape[0] * shape[1], np.int32)
-    tree_module._edge_keys(image, keys, key_count)
-    return keys, key_count
+    keys = np.empty(2 * shape[0] * shape[1], np.uint16)
+    tree_module._edge_keys(image, keys, 0xFFFF)
+    height, width = shape
+    edge_ids = np.arange(2 * height * width)
+    pixel = edge_ids // 2
+    inside = np.where(edge_ids % 2 == 0, pixel % width < width - 1, pixel // width < height - 1)
+    return keys, key_count, inside
 
 
 @pytest.mark.parametrize("shape", [(1, 1), (1, 2), (2, 1), (1, 9), (9, 1), (2, 2), (3, 5), (17, 23), (40, 31)])
@@ -159,12 +164,9 @@ def _random_edge_keys(shape, dtype, *, seed, levels):
 def test_edges_are_sorted_stably_by_key(shape, dtype):
     # The 8-bit path interleaves four quarters of the edges; both must equal a stable
     # sort of the grid's edges by key (Kruskal's ties are broken by edge id).
-    keys, key_count = _random_edge_keys(shape, dtype, seed=sum(shape), levels=6 if dtype == np.uint8 else 3000)
-    height, width = shape
-    edge_ids = np.arange(2 * height * width)
-    pixel = edge_ids // 2
-    inside = np.where(edge_ids % 2 == 0, pixel % width < width - 1, pixel // width < height - 1)
-    assert np.all(keys[~inside] == key_count) and np.all(keys[inside] < key_count)
+    keys, key_count, inside = _random_edge_keys(shape, dtype, seed=sum(shape), levels=6 if dtype == np.uint8 else 3000)
+    edge_ids = np.arange(keys.size)
+    assert np.all(keys[~inside] == 0xFFFF) and np.all(keys[inside] < key_count)
     expected = edge_ids[inside][np.argsort(keys[inside], kind="stable")]
     got = tree_module._counting_sorted_edges(keys, edge_ids[inside].astype(np.int32), key_count)
     np.testing.assert_array_equal(got, expected)
@@ -184,10 +186,10 @@ def test_kruskal_skips_the_block_cycle_maxima_and_keeps_its_tree(shape, dtype):
     # The edge that comes last on a 2 x 2 block's cycle is never a tree edge (the cycle
     # property), so Kruskal is given every other grid edge, in id order, and must build
     # exactly the tree it builds from all edges.
-    keys, key_count = _random_edge_keys(shape, dtype, seed=sum(shape) + 7, levels=4 if dtype == np.uint8 else 2000)
+    keys, key_count, inside = _random_edge_keys(shape, dtype, seed=sum(shape) + 7,
+                                                levels=4 if dtype == np.uint8 else 2000)
     height, width = shape
-    edge_ids = np.arange(2 * height * width)
-    inside = edge_ids[keys < key_count]
+    inside = np.flatnonzero(inside)
     if height > 1 and width > 1:
         dropped = _block_cycle_maxima(keys, height, width)
         assert dropped.size >= (height - 1) * (width - 1) // 2
