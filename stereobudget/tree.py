@@ -101,7 +101,7 @@ class TreeLayout:
     pixel_of_row : numpy.ndarray
         int32 ``(N,)``: the pixel (row-major index) held by row ``k``: ``tree.order``.
     row_of_pixel : numpy.ndarray
-        int64 ``(N,)``: the row of pixel ``p``, the inverse of ``pixel_of_row``.
+        int32 ``(N,)``: the row of pixel ``p``, the inverse of ``pixel_of_row``.
     rows : numpy.ndarray
         int32 ``(N,)``: ``0 .. N-1``, the walk order in row space.
     parent_row : numpy.ndarray
@@ -462,7 +462,7 @@ def _depth_first(bits, keys, height, width, root, similarity_of_key, out):
 def _tree_arrays(node_count):
     """Arrays a rooted tree is written into: order, parent, weight, row_of_pixel, parent_row, weight_row."""
     return (np.empty(node_count, np.int32), np.empty(node_count, np.int32), np.empty(node_count, np.float32),
-            np.empty(node_count, np.int64), np.empty(node_count, np.int32), np.empty(node_count, np.float32))
+            np.empty(node_count, np.int32), np.empty(node_count, np.int32), np.empty(node_count, np.float32))
 
 
 @njit(cache=True, inline="always")
@@ -1038,7 +1038,7 @@ def tree_layout(tree: MinimumSpanningTree) -> TreeLayout:
     """
     if not tree._layout:
         node_count = tree.order.shape[0]
-        row_of_pixel = np.empty(node_count, dtype=np.int64)
+        row_of_pixel = np.empty(node_count, dtype=np.int32)
         row_of_pixel[tree.order] = np.arange(node_count)
         parents = tree.parent[tree.order]
         parent_row = np.where(parents >= 0, row_of_pixel[np.maximum(parents, 0)], -1).astype(np.int32)
