@@ -47,6 +47,13 @@ _UINT16_TO_8BIT = 1.0 / 257.0
 _PARALLEL_MIN_NODES = 16384
 # Walk steps ahead whose rows are prefetched.
 _PREFETCH_AHEAD = 16
+# Walks side by side (:func:`_side_by_side_cuts`): the fewest nodes of the shorter range
+# worth a pair, and the most pairs cut from one range (each cut after the first takes
+# ranges from the nodes before the previous one, fewer each time).
+_MIN_SIDE_BY_SIDE = 1024
+_MAX_CUTS = 4
+# No subtree sizes given: the serial walk computes them where it needs them.
+_NO_SIZES = np.zeros(0, np.int32)
 
 
 @dataclass(frozen=True)
@@ -112,6 +119,9 @@ class TreeLayout:
     walk_split : (int, int) or None
         Where the two-thread walk cuts the rows (:func:`_balanced_subtree`), when the tree
         kernel took it; None: the walk finds it.
+    subtree_size : numpy.ndarray or None
+        int32 ``(N,)``: the number of rows in each row's subtree (:func:`_subtree_sizes`),
+        when the tree kernel counted them; None: the walk counts them.
     """
 
     pixel_of_row: np.ndarray
@@ -122,6 +132,7 @@ class TreeLayout:
     height: int
     width: int
     walk_split: tuple | None = None
+    subtree_size: np.ndarray | None = None
 
 
 # --------------------------------------------------------------------------------------
@@ -487,6 +498,67 @@ def _prefetch_node(out_flat, order, parent, position, disparities):
     prefetch_row(out_flat, parent[node], disparities)
 
 
+@njit(cache=True, inline="always")
+def _push_in_place(order, parent, weight, out, out_flat, position, first, disparities):
+    """The node at order position ``position`` pushes its row into its parent's; its own
+    row already holds its cost (:func:`_upward_range`, in place).  ``first``: the range's
+    first position, where the prefetch stops."""
+    if position - _PREFETCH_AHEAD >= first:
+        _prefetch_node(out_flat, order, parent, position - _PREFETCH_AHEAD, disparities)
+    v = order[position]
+    s = weight[v]
+    child = out[v]
+    target = out[parent[v]]
+    for d in range(disparities):
+        target[d] += s * child[d]
+
+
+@njit(cache=True, inline="always")
+def _push_cost(cost, order, parent, weight, out, out_flat, ready, position, first, disparities):
+    """:func:`_push_in_place` with the cost read from ``cost`` as a row is first touched."""
+    if position - _PREFETCH_AHEAD >= first:
+        _prefetch_node(out_flat, order, parent, position - _PREFETCH_AHEAD, disparities)
+    v = order[position]
+    p = parent[v]
+    s = weight[v]
+    child = out[v]
+    target = out[p]
+    if not ready[v]:  # a leaf: nothing was pushed into it
+        source = cost[v]
+        for d in range(disparities):
+            child[d] = source[d]
+        ready[v] = 1
+    if ready[p]:
+        for d in range(disparities):
+            target[d] += s * child[d]
+    else:
+        source = cost[p]
+        for d in range(disparities):
+            target[d] = source[d] + s * child[d]
+        ready[p] = 1
+
+
+@njit(cache=True, inline="always")
+def _push_distance(levels, min_disp, order, parent, weight, out, out_flat, ready, position, first, disparities):
+    """:func:`_push_cost` with the cost of :func:`_distance_row` made as a row is first touched."""
+    if position - _PREFETCH_AHEAD >= first:
+        _prefetch_node(out_flat, order, parent, position - _PREFETCH_AHEAD, disparities)
+    v = order[position]
+    p = parent[v]
+    s = weight[v]
+    child = out[v]
+    target = out[p]
+    if not ready[v]:
+        _distance_row(levels[v], min_disp, child)
+        ready[v] = 1
+    if not ready[p]:
+        # The same two roundings as a stored cost row plus the child.
+        _distance_row(levels[p], min_disp, target)
+        ready[p] = 1
+    for d in range(disparities):
+        target[d] += s * child[d]
+
+
 @njit(cache=True, **NO_REFCOUNTS)
 def _upward_range(cost, levels, min_disp, order, parent, weight, out, ready, lo, hi):
     """Leaf-to-root pass over order positions ``[lo, hi)``, each node pushing into its parent.
@@ -506,40 +578,52 @@ def _upward_range(cost, levels, min_disp, order, parent, weight, out, ready, lo,
     """
     disparities = out.shape[1]
     out_flat = out.reshape(out.size)
-    for k in range(hi - 1, lo - 1, -1):
-        if k - _PREFETCH_AHEAD >= lo:
-            _prefetch_node(out_flat, order, parent, k - _PREFETCH_AHEAD, disparities)
-        v = order[k]
-        p = parent[v]
-        s = weight[v]
-        child = out[v]
-        target = out[p]
-        if cost is None and levels is None:
-            for d in range(disparities):
-                target[d] += s * child[d]
-            continue
-        if not ready[v]:  # a leaf: nothing was pushed into it
-            if levels is None:
-                source = cost[v]
-                for d in range(disparities):
-                    child[d] = source[d]
-            else:
-                _distance_row(levels[v], min_disp, child)
-            ready[v] = 1
-        if ready[p]:
-            for d in range(disparities):
-                target[d] += s * child[d]
-        else:
-            if levels is None:
-                source = cost[p]
-                for d in range(disparities):
-                    target[d] = source[d] + s * child[d]
-            else:
-                # The same two roundings as a stored cost row plus the child.
-                _distance_row(levels[p], min_disp, target)
-                for d in range(disparities):
-                    target[d] += s * child[d]
-            ready[p] = 1
+    if cost is None and levels is None:
+        for k in range(hi - 1, lo - 1, -1):
+            _push_in_place(order, parent, weight, out, out_flat, k, lo, disparities)
+    elif levels is None:
+        for k in range(hi - 1, lo - 1, -1):
+            _push_cost(cost, order, parent, weight, out, out_flat, ready, k, lo, disparities)
+    else:
+        for k in range(hi - 1, lo - 1, -1):
+            _push_distance(levels, min_disp, order, parent, weight, out, out_flat, ready, k, lo, disparities)
+
+
+@njit(cache=True, **NO_REFCOUNTS)
+def _upward_side_by_side(cost, levels, min_disp, order, parent, weight, out, ready, lo, hi, other_lo, other_hi):
+    """:func:`_upward_range` of ``[lo, hi)`` and ``[other_lo, other_hi)``, a node of each in turn.
+
+    The ranges must write no row in common (:func:`_side_by_side_cuts`).  Each node's
+    push waits for its child's, which waited for the grandchild's: along a chain the
+    pass is one long dependency through memory.  Two independent chains in turn keep
+    the core busy while each waits.
+    """
+    disparities = out.shape[1]
+    out_flat = out.reshape(out.size)
+    k = hi - 1
+    j = other_hi - 1
+    if cost is None and levels is None:
+        while k >= lo and j >= other_lo:
+            _push_in_place(order, parent, weight, out, out_flat, k, lo, disparities)
+            _push_in_place(order, parent, weight, out, out_flat, j, other_lo, disparities)
+            k -= 1
+            j -= 1
+    elif levels is None:
+        while k >= lo and j >= other_lo:
+            _push_cost(cost, order, parent, weight, out, out_flat, ready, k, lo, disparities)
+            _push_cost(cost, order, parent, weight, out, out_flat, ready, j, other_lo, disparities)
+            k -= 1
+            j -= 1
+    else:
+        while k >= lo and j >= other_lo:
+            _push_distance(levels, min_disp, order, parent, weight, out, out_flat, ready, k, lo, disparities)
+            _push_distance(levels, min_disp, order, parent, weight, out, out_flat, ready, j, other_lo,
+                           disparities)
+            k -= 1
+            j -= 1
+    # The rest of the longer range on its own.
+    _upward_range(cost, levels, min_disp, order, parent, weight, out, ready, lo, k + 1)
+    _upward_range(cost, levels, min_disp, order, parent, weight, out, ready, other_lo, j + 1)
 
 
 @njit(cache=True)
@@ -557,6 +641,30 @@ def _make_ready(cost, levels, min_disp, out, ready, v):
         ready[v] = 1
 
 
+@njit(cache=True, inline="always")
+def _settle(order, parent, weight, out, out_flat, position, last, winners, min_disp, competing, fused,
+            disparities):
+    """The node at order position ``position`` takes its final row from its parent's, and
+    its winner (:func:`_downward_range`).  ``last``: the range's end, where the prefetch stops."""
+    if position + _PREFETCH_AHEAD < last:
+        _prefetch_node(out_flat, order, parent, position + _PREFETCH_AHEAD, disparities)
+    v = order[position]
+    s = weight[v]
+    keep = np.float32(1.0) - s * s
+    above = out[parent[v]]
+    row = out[v]
+    if fused:
+        best = blend_rows_first_min(row, above, s, keep, competing)
+        if row[0] != row[0]:
+            best = 0  # a NaN first layer wins, as in first_min
+        winners[v] = refined_winner(row[:competing], best, min_disp)
+    else:
+        for d in range(disparities):
+            row[d] = s * above[d] + keep * row[d]
+        if winners.shape[0] > 0:
+            winners[v] = subpixel_winner(row[:competing], min_disp)
+
+
 @njit(cache=True, **NO_REFCOUNTS)
 def _downward_range(order, parent, weight, out, lo, hi, winners, min_disp, competing):
     """Root-to-leaf pass over order positions ``[lo, hi)``; parents must be final already.
@@ -566,57 +674,168 @@ def _downward_range(order, parent, weight, out, lo, hi, winners, min_disp, compe
     separate pass over the volume.
     """
     disparities = out.shape[1]
-    take_winners = winners.shape[0] > 0
     # Whole vectors of layers (the decoders' padded volumes): the blend and the search for
     # the winner in one vector loop.
-    fused = take_winners and disparities % LANES == 0
+    fused = winners.shape[0] > 0 and disparities % LANES == 0
     out_flat = out.reshape(out.size)
     for k in range(lo, hi):
-        if k + _PREFETCH_AHEAD < hi:
-            _prefetch_node(out_flat, order, parent, k + _PREFETCH_AHEAD, disparities)
-        v = order[k]
-        s = weight[v]
-        keep = np.float32(1.0) - s * s
-        above = out[parent[v]]
-        row = out[v]
-        if fused:
-            best = blend_rows_first_min(row, above, s, keep, competing)
-            if row[0] != row[0]:
-                best = 0  # a NaN first layer wins, as in first_min
-            winners[v] = refined_winner(row[:competing], best, min_disp)
-            continue
-        for d in range(disparities):
-            row[d] = s * above[d] + keep * row[d]
-        if take_winners:
-            winners[v] = subpixel_winner(row[:competing], min_disp)
+        _settle(order, parent, weight, out, out_flat, k, hi, winners, min_disp, competing, fused, disparities)
+
+
+@njit(cache=True, **NO_REFCOUNTS)
+def _downward_side_by_side(order, parent, weight, out, lo, hi, other_lo, other_hi, winners, min_disp, competing):
+    """:func:`_downward_range` of ``[lo, hi)`` and ``[other_lo, other_hi)``, a node of each in
+    turn (see :func:`_upward_side_by_side`); neither range holds a parent of the other's nodes."""
+    disparities = out.shape[1]
+    fused = winners.shape[0] > 0 and disparities % LANES == 0
+    out_flat = out.reshape(out.size)
+    k = lo
+    j = other_lo
+    while k < hi and j < other_hi:
+        _settle(order, parent, weight, out, out_flat, k, hi, winners, min_disp, competing, fused, disparities)
+        _settle(order, parent, weight, out, out_flat, j, other_hi, winners, min_disp, competing, fused,
+                disparities)
+        k += 1
+        j += 1
+    _downward_range(order, parent, weight, out, k, hi, winners, min_disp, competing)
+    _downward_range(order, parent, weight, out, j, other_hi, winners, min_disp, competing)
+
+
+@njit(cache=True, nogil=True)
+def _fill_subtree_sizes(parent_row, size):
+    """``size[k]`` (int32 ``(N,)``) = the number of rows in row ``k``'s subtree, itself
+    included, of a layout whose rows are in pre-order (``parent_row``: each row's parent)."""
+    size[:] = 1
+    for k in range(parent_row.shape[0] - 1, 0, -1):
+        size[parent_row[k]] += size[k]
+    return size
+
+
+@njit(cache=True, nogil=True)
+def _subtree_sizes(parent_row):
+    """:func:`_fill_subtree_sizes` into a new array."""
+    return _fill_subtree_sizes(parent_row, np.empty(parent_row.shape[0], dtype=np.int32))
+
+
+@njit(cache=True, nogil=True)
+def _side_by_side_cuts(size, lo, hi, cuts):
+    """Cut order positions ``[lo, hi)`` into pairs of ranges one thread walks side by side.
+
+    In pre-order the subtree of the node at position ``a0`` is ``[a0, a1)``, and the nodes
+    after it up to ``hi``, ``[a1, hi)``, are neither its ancestors nor its descendants:
+    upward, the two ranges push into rows of their own or into rows before ``a0``, which
+    the pass reaches only after both; downward, their parents are final once ``[lo, a0)``
+    is.  Walked a node of each in turn, each parent still receives its children's pushes
+    in the serial walk's order, so every sum is the same, bit for bit.
+
+    ``size`` (int32) holds the subtree size of the node at each order position
+    (:func:`_subtree_sizes`).  The cut takes the ``a0`` whose shorter range is longest,
+    then cuts ``[lo, a0)`` the same way, up to ``cuts.shape[0]`` times, while the shorter
+    range has at least :data:`_MIN_SIDE_BY_SIDE` nodes.  Writes ``(a0, a1, end)`` rows
+    into ``cuts`` (int64; the first ``end`` is ``hi``, the next ones the previous ``a0``)
+    and returns their number.
+    """
+    count = 0
+    end = hi
+    while count < cuts.shape[0] and end - lo >= 2 * _MIN_SIDE_BY_SIDE:
+        # The longest shorter range, then its first position: a maximum and a search, both
+        # vector loops (an arg-max in one loop is scalar: 0.17 ms on Teddy's rows).
+        sizes = size[lo:end]
+        longest = _MIN_SIDE_BY_SIDE - 1
+        for i in range(sizes.shape[0]):
+            # Negative where the subtree reaches past `end` (an ancestor of a later node).
+            longest = max(longest, min(sizes[i], end - lo - i - sizes[i]))
+        if longest < _MIN_SIDE_BY_SIDE:
+            break
+        best = lo
+        while min(size[best], end - best - size[best]) != longest:
+            best += 1
+        cuts[count, 0] = best
+        cuts[count, 1] = best + size[best]
+        cuts[count, 2] = end
+        count += 1
+        end = best
+    return count
+
+
+@njit(cache=True, **NO_REFCOUNTS)
+def _upward_cut(cost, levels, min_disp, order, parent, weight, out, ready, lo, hi, cuts):
+    """:func:`_upward_range` of ``[lo, hi)``, its ``cuts`` (:func:`_side_by_side_cuts`) side by side."""
+    rest = hi
+    for i in range(cuts.shape[0]):
+        a0, a1, end = cuts[i, 0], cuts[i, 1], cuts[i, 2]
+        # The subtree without its top node, beside the nodes after it; then the top's push.
+        _upward_side_by_side(cost, levels, min_disp, order, parent, weight, out, ready, a0 + 1, a1, a1, end)
+        _upward_range(cost, levels, min_disp, order, parent, weight, out, ready, a0, a0 + 1)
+        rest = a0
+    _upward_range(cost, levels, min_disp, order, parent, weight, out, ready, lo, rest)
+
+
+@njit(cache=True, **NO_REFCOUNTS)
+def _downward_cut(order, parent, weight, out, lo, hi, cuts, winners, min_disp, competing):
+    """:func:`_downward_range` of ``[lo, hi)``, its ``cuts`` side by side."""
+    count = cuts.shape[0]
+    rest = cuts[count - 1, 0] if count else hi
+    _downward_range(order, parent, weight, out, lo, rest, winners, min_disp, competing)
+    for i in range(count - 1, -1, -1):
+        _downward_side_by_side(order, parent, weight, out, cuts[i, 0], cuts[i, 1], cuts[i, 1], cuts[i, 2],
+                               winners, min_disp, competing)
 
 
 @njit(cache=True)
-def _aggregate_serial(cost, levels, order, parent, weight, out, winners, min_disp, competing):
+def _aggregate_serial(cost, levels, order, parent, weight, out, winners, min_disp, competing, size):
     """Both passes on one thread; ``cost``/``out`` are ``(N, D)`` float32, may alias;
     ``cost=None``: ``out`` holds the cost and is aggregated in place (``levels``: see
-    :func:`_upward_range`)."""
+    :func:`_upward_range`).  ``size``: the subtree size at each order position
+    (:func:`_subtree_sizes`), to walk ranges side by side; empty: one range."""
     node_count = order.shape[0]
     ready = np.zeros(node_count if cost is not None else 0, dtype=np.uint8)
-    _upward_range(cost, levels, min_disp, order, parent, weight, out, ready, 1, node_count)
+    cuts = np.empty((_MAX_CUTS, 3), dtype=np.int64)
+    count = _side_by_side_cuts(size, 1, node_count, cuts) if size.shape[0] else 0
+    _upward_cut(cost, levels, min_disp, order, parent, weight, out, ready, 1, node_count, cuts[:count])
     _make_ready(cost, levels, min_disp, out, ready, order[0])
     if winners.shape[0] > 0:
         winners[order[0]] = subpixel_winner(out[order[0]][:competing], min_disp)
-    _downward_range(order, parent, weight, out, 1, node_count, winners, min_disp, competing)
+    _downward_cut(order, parent, weight, out, 1, node_count, cuts[:count], winners, min_disp, competing)
 
 
 @njit(cache=True, parallel=True)
-def _aggregate_pair(first, first_order, first_parent, first_weight, second, second_order, second_parent,
-                    second_weight, winners, min_disp, competing):
+def _aggregate_pair(first, first_order, first_parent, first_weight, first_size, second, second_order,
+                    second_parent, second_weight, second_size, counted, winners, min_disp, competing):
     """Two independent serial walks, one per thread (numba's own: threads of another pool
-    would compete with numba's, which spin a while after each parallel kernel)."""
+    would compete with numba's, which spin a while after each parallel kernel).
+
+    The orders are layouts' rows (``0 .. N-1``).  ``*_size``: the trees' subtree sizes,
+    or, where ``counted`` (bool (2,)) is False, an int32 ``(N,)`` array they are counted
+    into (:func:`_fill_subtree_sizes`) by the thread that walks that tree.  (Memory the
+    worker allocated itself would be new pages on every decode: its allocator arena
+    gives freed blocks back.)
+    """
     for part in prange(2):
         if part == 0:
+            if not counted[0]:
+                _fill_subtree_sizes(first_parent, first_size)
             _aggregate_serial(None, None, first_order, first_parent, first_weight, first, winners[0], min_disp,
-                              competing)
+                              competing, first_size)
         else:
+            if not counted[1]:
+                _fill_subtree_sizes(second_parent, second_size)
             _aggregate_serial(None, None, second_order, second_parent, second_weight, second, winners[1],
-                              min_disp, competing)
+                              min_disp, competing, second_size)
+
+
+@njit(cache=True, nogil=True)
+def _balanced_cut(size):
+    """:func:`_balanced_subtree` from the rows' subtree sizes (:func:`_fill_subtree_sizes`)."""
+    node_count = size.shape[0]
+    best = 1
+    best_gap = node_count
+    for k in range(1, node_count):
+        gap = abs(2 * size[k] - node_count)
+        if gap < best_gap:
+            best_gap = gap
+            best = k
+    return best, size[best]
 
 
 @njit(cache=True, nogil=True)
@@ -641,25 +860,34 @@ def _balanced_subtree(order, parent):
 
 @njit(cache=True, parallel=True)
 def _aggregate_two_threads(cost, levels, order, parent, weight, out, winners, min_disp, competing, a0,
-                           subtree_size):
+                           subtree_size, size):
     """Both passes with the tree cut into a subtree A and the rest B, one thread each.
 
     In pre-order the subtree of the node at position ``a0`` (``subtree_size`` nodes,
     :func:`_balanced_subtree`) is the contiguous range ``[a0, a1)``.  Upward, A and B are
     summed independently, then A's total is carried up the path to the root.  Downward,
     the final aggregate of A's parent is computed along that path first, so A and B can
-    again run independently.  Threads never write the same row.
+    again run independently.  Threads never write the same row.  Each thread walks its
+    ranges cut into pairs side by side (:func:`_side_by_side_cuts`, from ``size``: the
+    subtree size at each order position, :func:`_subtree_sizes`).
     """
     node_count, disparities = out.shape
     a1 = a0 + subtree_size
     ready = np.zeros(node_count if cost is not None else 0, dtype=np.uint8)
+    # The cuts of A (below its top), of B after A, and of B before A.
+    cuts = np.empty((3, _MAX_CUTS, 3), dtype=np.int64)
+    counts = np.zeros(3, dtype=np.int64)
     for part in prange(2):
         if part == 0:
-            _upward_range(cost, levels, min_disp, order, parent, weight, out, ready, a0 + 1, a1)
+            counts[0] = _side_by_side_cuts(size, a0 + 1, a1, cuts[0])
+            _upward_cut(cost, levels, min_disp, order, parent, weight, out, ready, a0 + 1, a1, cuts[0, :counts[0]])
             _make_ready(cost, levels, min_disp, out, ready, order[a0])
         else:
-            _upward_range(cost, levels, min_disp, order, parent, weight, out, ready, a1, node_count)
-            _upward_range(cost, levels, min_disp, order, parent, weight, out, ready, 1, a0)
+            counts[1] = _side_by_side_cuts(size, a1, node_count, cuts[1])
+            counts[2] = _side_by_side_cuts(size, 1, a0, cuts[2])
+            _upward_cut(cost, levels, min_disp, order, parent, weight, out, ready, a1, node_count,
+                        cuts[1, :counts[1]])
+            _upward_cut(cost, levels, min_disp, order, parent, weight, out, ready, 1, a0, cuts[2, :counts[2]])
             _make_ready(cost, levels, min_disp, out, ready, order[0])
 
     # Carry A's upward sum into every ancestor, attenuated along the path.
@@ -700,10 +928,11 @@ def _aggregate_two_threads(cost, levels, order, parent, weight, out, winners, mi
                 total[d] = top_similarity * above[d] + top_keep * total[d]
             if take_winners:
                 winners[top] = subpixel_winner(total[:competing], min_disp)
-            _downward_range(order, parent, weight, out, a0 + 1, a1, winners, min_disp, competing)
+            _downward_cut(order, parent, weight, out, a0 + 1, a1, cuts[0, :counts[0]], winners, min_disp, competing)
         else:
-            _downward_range(order, parent, weight, out, 1, a0, winners, min_disp, competing)
-            _downward_range(order, parent, weight, out, a1, node_count, winners, min_disp, competing)
+            _downward_cut(order, parent, weight, out, 1, a0, cuts[2, :counts[2]], winners, min_disp, competing)
+            _downward_cut(order, parent, weight, out, a1, node_count, cuts[1, :counts[1]], winners, min_disp,
+                          competing)
 
 
 @njit(cache=True, inline="always")
@@ -794,13 +1023,14 @@ def _uint16_keys(image):
 
 
 @njit(cache=True, nogil=True)
-def _rooted_tree(image, key_count, similarity_of_key, out, split):
+def _rooted_tree(image, key_count, similarity_of_key, out, split, size):
     """Edge keys -> the edges Kruskal needs (:func:`_kept_edges`) -> counting sort ->
     Kruskal -> depth-first rooting at pixel 0, in one kernel (one compiled object to load
     instead of five: ~10 ms each for a single-shot decode).
-    Writes ``out`` (:func:`_tree_arrays`) and, when ``split`` has room for them, the
-    two-thread walk's split of the row layout (:func:`_balanced_subtree`); returns the
-    number of nodes reached."""
+    Writes ``out`` (:func:`_tree_arrays`), the rows' subtree sizes into ``size`` when it
+    has room for them (:func:`_fill_subtree_sizes`), and then, when ``split`` has room
+    for them, the two-thread walk's split of the row layout (:func:`_balanced_subtree`);
+    returns the number of nodes reached."""
     height, width = image.shape[0], image.shape[1]
     # uint16 keys (either guide's fit): half the bytes of int32 for the four passes that
     # read them, scattered in the rooting (the tree pair 8.50-8.58 -> 8.14-8.23 ms on Teddy).
@@ -809,29 +1039,32 @@ def _rooted_tree(image, key_count, similarity_of_key, out, split):
     sorted_edges = _counting_sorted_edges(keys, _kept_edges(keys, height, width), key_count)
     bits = _kruskal_tree_bits(sorted_edges, height, width)
     reached = _depth_first(bits, keys, height, width, 0, similarity_of_key, out)
-    if split.shape[0] >= 2 and reached == height * width and reached >= 2:
-        rows_in_order = out[0][:0]  # empty: the layout's rows 0 .. N-1 are the walk order
-        split[0], split[1] = _balanced_subtree(rows_in_order, out[4])
+    if size.shape[0] == reached == height * width:
+        _fill_subtree_sizes(out[4], size)
+        if split.shape[0] >= 2 and reached >= 2:
+            split[0], split[1] = _balanced_cut(size)
     return reached
 
 
 @njit(cache=True, parallel=True)
-def _rooted_tree_pair(first, first_keys, first_similarity, first_out, first_split,
-                      second, second_keys, second_similarity, second_out, second_split, reached):
+def _rooted_tree_pair(first, first_keys, first_similarity, first_out, first_split, first_size,
+                      second, second_keys, second_similarity, second_out, second_split, second_size, reached):
     """:func:`_rooted_tree` of two guides, one per thread of numba's pool.
 
     The pool's own worker takes the second tree: a thread started beside it would share
     the two cores with that worker while it still spins after the previous kernel
     (Teddy's tree stage: 28.8 ms with a Python thread, 24.3 ms with this kernel).  The
-    first guide (I1's, the quicker tree with 8-bit keys) also gets its walk split here,
-    in the time its thread would wait for the second tree (0.7 ms on Teddy that the
-    refinement walk otherwise spends on one thread).
+    first guide (I1's) also gets its subtree sizes and walk split here (0.3 ms on Teddy
+    that the refinement walk would otherwise spend on one thread).  The second tree's
+    sizes are counted by the walk of the pair (:func:`_aggregate_pair`), whose second
+    walk is the shorter one; here they made the tree stage 0.3 ms longer.
     """
     for part in prange(2):
         if part == 0:
-            reached[0] = _rooted_tree(first, first_keys, first_similarity, first_out, first_split)
+            reached[0] = _rooted_tree(first, first_keys, first_similarity, first_out, first_split, first_size)
         else:
-            reached[1] = _rooted_tree(second, second_keys, second_similarity, second_out, second_split)
+            reached[1] = _rooted_tree(second, second_keys, second_similarity, second_out, second_split,
+                                      second_size)
 
 
 # --------------------------------------------------------------------------------------
@@ -871,8 +1104,9 @@ def build_tree(guide: np.ndarray, *, sigma: float = 0.1 * 255, median_size: int 
     image, key_count, similarity_of_key = _tree_inputs(guide, sigma=sigma, median_size=median_size)
     out = _tree_arrays(image.shape[0] * image.shape[1])
     split = np.zeros(2, np.int64)
-    reached = _rooted_tree(image, key_count, similarity_of_key, out, split)
-    return _rooted_tree_result(out, reached, image.shape, split)
+    size = np.empty(image.shape[0] * image.shape[1], np.int32)
+    reached = _rooted_tree(image, key_count, similarity_of_key, out, split, size)
+    return _rooted_tree_result(out, reached, image.shape, split, size)
 
 
 def _tree_inputs(guide, *, sigma, median_size):
@@ -913,9 +1147,9 @@ def _similarity_of_key(key_count, key_scale, sigma):
     return table
 
 
-def _rooted_tree_result(out, reached, shape, split=None):
+def _rooted_tree_result(out, reached, shape, split=None, size=None):
     """The :class:`MinimumSpanningTree` (with its layout) of arrays :func:`_rooted_tree` wrote
-    (``split``: the walk split it took, if any)."""
+    (``split``, ``size``: the walk split and the subtree sizes it took, if any)."""
     height, width = shape[:2]
     node_count = height * width
     order, parent, weight, row_of_pixel, parent_row, weight_row = out
@@ -925,7 +1159,8 @@ def _rooted_tree_result(out, reached, shape, split=None):
     walk_split = (int(split[0]), int(split[1])) if split is not None and node_count >= 2 else None
     tree._layout.append(TreeLayout(pixel_of_row=order, row_of_pixel=row_of_pixel,
                                    rows=np.arange(node_count, dtype=np.int32), parent_row=parent_row,
-                                   weight_row=weight_row, height=height, width=width, walk_split=walk_split))
+                                   weight_row=weight_row, height=height, width=width, walk_split=walk_split,
+                                   subtree_size=size))
     return tree
 
 
@@ -1008,26 +1243,38 @@ def _aggregate(cost, tree, *, out, min_disp):
     winners = np.empty(node_count if take_winners else 0, dtype=np.float32)
     if node_count == 0 or disparities == 0:
         return out, (winners.reshape(tree.height, tree.width) if take_winners else None)
+    # The pixel-order walk's positions are its layout's rows: the rows' subtree sizes.
+    size = _subtree_sizes(tree_layout(tree).parent_row) if node_count >= 2 * _MIN_SIDE_BY_SIDE else None
     _walk(cost.reshape(node_count, disparities), tree.order, tree.parent, tree.weight,
-          out.reshape(node_count, disparities), winners, int(min_disp) if take_winners else 0, disparities)
+          out.reshape(node_count, disparities), winners, int(min_disp) if take_winners else 0, disparities,
+          size=size)
     return out, (winners.reshape(tree.height, tree.width) if take_winners else None)
 
 
-def _walk(cost, order, parent, weight, out, winners, min_disp, competing, *, levels=None, split=None):
+def _walk(cost, order, parent, weight, out, winners, min_disp, competing, *, levels=None, split=None, size=None,
+          rows=False):
     """Both passes over ``(N, D)`` rows: on two threads for large trees, else on one.
 
     Winners are taken among the first ``competing`` layers.  ``levels``: the cost is
     Yang's refinement cost of these levels (:func:`_distance_row`), ``cost`` is not read.
-    ``split``: the tree's :func:`_balanced_subtree`, if already known.
+    ``split``, ``size``: the tree's :func:`_balanced_subtree` and the subtree size at each
+    order position (:func:`_subtree_sizes` of its layout's ``parent_row``), if already
+    known (``rows``: ``order`` is a layout's ``0 .. N-1``, and they are counted here if not).
     """
     if levels is None and cost.shape == out.shape and cost.ctypes.data == out.ctypes.data:
         cost = None  # aggregated in place
-    if order.shape[0] < _PARALLEL_MIN_NODES or numba.get_num_threads() < 2:
-        _aggregate_serial(cost, levels, order, parent, weight, out, winners, min_disp, competing)
+    node_count = order.shape[0]
+    if size is None and node_count >= 2 * _MIN_SIDE_BY_SIDE:
+        if not rows:
+            raise ValueError("a walk in pixel order needs the subtree sizes of its rows")
+        size = _subtree_sizes(parent)
+    if node_count < _PARALLEL_MIN_NODES or numba.get_num_threads() < 2:
+        _aggregate_serial(cost, levels, order, parent, weight, out, winners, min_disp, competing,
+                          size if size is not None else _NO_SIZES)
     else:
-        a0, subtree_size = split if split is not None else _balanced_subtree(order, parent)
+        a0, subtree_size = split if split is not None else _balanced_cut(size)
         _aggregate_two_threads(cost, levels, order, parent, weight, out, winners, min_disp, competing, a0,
-                               subtree_size)
+                               subtree_size, size)
 
 
 def tree_layout(tree: MinimumSpanningTree) -> TreeLayout:
@@ -1074,10 +1321,14 @@ def build_trees(guides, *, sigma: float = 0.1 * 255, median_size: int = 3) -> li
         inputs = [_tree_inputs(g, sigma=sigma, median_size=median_size) for g in guides[:2]]
         outs = [_tree_arrays(image.shape[0] * image.shape[1]) for image, _, _ in inputs]
         reached = np.zeros(2, np.int64)
-        splits = [np.zeros(2, np.int64), np.zeros(0, np.int64)]  # the second tree's walks run unsplit
-        _rooted_tree_pair(*inputs[0], outs[0], splits[0], *inputs[1], outs[1], splits[1], reached)
-        trees += [_rooted_tree_result(out, int(r), image.shape, split if split.size else None)
-                  for out, r, (image, _, _), split in zip(outs, reached, inputs, splits)]
+        # The second tree's walks run unsplit, and the walk of the pair counts its subtree sizes.
+        splits = [np.zeros(2, np.int64), np.zeros(0, np.int64)]
+        sizes = [np.empty(outs[0][0].shape[0], np.int32), np.zeros(0, np.int32)]
+        _rooted_tree_pair(*inputs[0], outs[0], splits[0], sizes[0], *inputs[1], outs[1], splits[1], sizes[1],
+                          reached)
+        trees += [_rooted_tree_result(out, int(r), image.shape, split if split.size else None,
+                                      size if size.size else None)
+                  for out, r, (image, _, _), split, size in zip(outs, reached, inputs, splits, sizes)]
         guides = guides[2:]
     return trees + [build_tree(g, sigma=sigma, median_size=median_size) for g in guides]
 
@@ -1110,7 +1361,7 @@ def aggregate_rows_winners(volume: np.ndarray, layout: TreeLayout, *, min_disp: 
     winners = np.empty(layout.height * layout.width, dtype=np.float32)
     if volume.size:
         _walk(volume, layout.rows, layout.parent_row, layout.weight_row, volume, winners, int(min_disp), competing,
-              split=layout.walk_split)
+              split=layout.walk_split, size=layout.subtree_size, rows=True)
     return _in_pixel_order(winners, layout)
 
 
@@ -1149,8 +1400,10 @@ def aggregate_two_rows_winners(first: np.ndarray, first_layout: TreeLayout, seco
         return (aggregate_rows_winners(first, first_layout, min_disp=min_disp, num_disp=num_disp),
                 aggregate_rows_winners(second, second_layout, min_disp=min_disp, num_disp=num_disp))
     winners = np.empty((2, node_count), dtype=np.float32)
-    _aggregate_pair(first, first_layout.rows, first_layout.parent_row, first_layout.weight_row, second,
-                    second_layout.rows, second_layout.parent_row, second_layout.weight_row, winners, int(min_disp),
+    counted = np.array([first_layout.subtree_size is not None, second_layout.subtree_size is not None])
+    _aggregate_pair(first, first_layout.rows, first_layout.parent_row, first_layout.weight_row,
+                    _sizes_or_room(first_layout), second, second_layout.rows, second_layout.parent_row,
+                    second_layout.weight_row, _sizes_or_room(second_layout), counted, winners, int(min_disp),
                     competing)
     return _in_pixel_order(winners[0], first_layout), _in_pixel_order(winners[1], second_layout)
 
@@ -1191,8 +1444,13 @@ def distance_rows_winners(levels: np.ndarray, layout: TreeLayout, *, min_disp: i
     winners = np.empty(layout.height * layout.width, dtype=np.float32)
     if out.size:
         _walk(out, layout.rows, layout.parent_row, layout.weight_row, out, winners, int(min_disp), competing,
-              levels=levels, split=layout.walk_split)
+              levels=levels, split=layout.walk_split, size=layout.subtree_size, rows=True)
     return _in_pixel_order(winners, layout)
+
+
+def _sizes_or_room(layout):
+    """The layout's subtree sizes, or an array for the walk to count them into."""
+    return layout.subtree_size if layout.subtree_size is not None else np.empty(layout.rows.shape[0], np.int32)
 
 
 def _in_pixel_order(winners, layout):
