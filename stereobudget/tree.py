@@ -499,16 +499,22 @@ def _prefetch_node(out_flat, order, parent, position, disparities):
 
 
 @njit(cache=True, inline="always")
-def _push_in_place(order, parent, weight, out, out_flat, position, first, disparities):
-    """The node at order position ``position`` pushes its row into its parent's; its own
-    row already holds its cost (:func:`_upward_range`, in place).  ``first``: the range's
-    first position, where the prefetch stops."""
+def _upward_rows(order, parent, weight, out, out_flat, position, first, disparities):
+    """The node at order position ``position`` in the upward pass (``first``: the range's
+    first position, where the prefetch stops): its node, its parent, their similarity,
+    and its row and its parent's."""
     if position - _PREFETCH_AHEAD >= first:
         _prefetch_node(out_flat, order, parent, position - _PREFETCH_AHEAD, disparities)
     v = order[position]
-    s = weight[v]
-    child = out[v]
-    target = out[parent[v]]
+    p = parent[v]
+    return v, p, weight[v], out[v], out[p]
+
+
+@njit(cache=True, inline="always")
+def _push_in_place(order, parent, weight, out, out_flat, position, first, disparities):
+    """The node at order position ``position`` pushes its row into its parent's; its own
+    row already holds its cost (:func:`_upward_range`, in place)."""
+    _, _, s, child, target = _upward_rows(order, parent, weight, out, out_flat, position, first, disparities)
     for d in range(disparities):
         target[d] += s * child[d]
 
@@ -516,13 +522,7 @@ def _push_in_place(order, parent, weight, out, out_flat, position, first, dispar
 @njit(cache=True, inline="always")
 def _push_cost(cost, order, parent, weight, out, out_flat, ready, position, first, disparities):
     """:func:`_push_in_place` with the cost read from ``cost`` as a row is first touched."""
-    if position - _PREFETCH_AHEAD >= first:
-        _prefetch_node(out_flat, order, parent, position - _PREFETCH_AHEAD, disparities)
-    v = order[position]
-    p = parent[v]
-    s = weight[v]
-    child = out[v]
-    target = out[p]
+    v, p, s, child, target = _upward_rows(order, parent, weight, out, out_flat, position, first, disparities)
     if not ready[v]:  # a leaf: nothing was pushed into it
         source = cost[v]
         for d in range(disparities):
@@ -541,13 +541,7 @@ def _push_cost(cost, order, parent, weight, out, out_flat, ready, position, firs
 @njit(cache=True, inline="always")
 def _push_distance(levels, min_disp, order, parent, weight, out, out_flat, ready, position, first, disparities):
     """:func:`_push_cost` with the cost of :func:`_distance_row` made as a row is first touched."""
-    if position - _PREFETCH_AHEAD >= first:
-        _prefetch_node(out_flat, order, parent, position - _PREFETCH_AHEAD, disparities)
-    v = order[position]
-    p = parent[v]
-    s = weight[v]
-    child = out[v]
-    target = out[p]
+    v, p, s, child, target = _upward_rows(order, parent, weight, out, out_flat, position, first, disparities)
     if not ready[v]:
         _distance_row(levels[v], min_disp, child)
         ready[v] = 1
