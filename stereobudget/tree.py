@@ -732,8 +732,9 @@ def _side_by_side_cuts(size, lo, hi, cuts):
     count = 0
     end = hi
     while count < cuts.shape[0] and end - lo >= 2 * _MIN_SIDE_BY_SIDE:
-        # The longest shorter range, then its first position: a maximum and a search, both
-        # vector loops (an arg-max in one loop is scalar: 0.17 ms on Teddy's rows).
+        # The longest shorter range (a maximum: a vector loop), then the first position that
+        # has it; one arg-max loop would be scalar (Teddy's three cuts of I1's rows: 0.24 ms
+        # that way, 0.07 ms this way).
         sizes = size[lo:end]
         longest = _MIN_SIDE_BY_SIDE - 1
         for i in range(sizes.shape[0]):
