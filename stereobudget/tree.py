@@ -833,24 +833,24 @@ def _balanced_cut(size):
     return best, size[best]
 
 
-@njit(cache=True, nogil=True)
 def _balanced_subtree(order, parent):
     """Order position of the non-root node whose subtree is closest to half the tree, and
-    that subtree's size.  An empty ``order`` stands for ``0 .. N-1`` (a layout's rows)."""
-    node_count = parent.shape[0]
-    identity = order.shape[0] == 0
-    size = np.ones(node_count, dtype=np.int32)
-    for k in range(node_count - 1, 0, -1):
-        v = k if identity else order[k]
-        size[parent[v]] += size[v]
-    best = 1
-    best_gap = node_count
-    for k in range(1, node_count):
-        gap = abs(2 * size[k if identity else order[k]] - node_count)
-        if gap < best_gap:
-            best_gap = gap
-            best = k
-    return best, size[best if identity else order[best]]
+    that subtree's size, for a tree in pre-order ``order`` with ``parent`` per node (a
+    layout's ``rows`` and ``parent_row``, or a tree's ``order`` and ``parent``)."""
+    return _balanced_cut(_subtree_sizes(_parent_rows(order, parent, _rows_of(order))))
+
+
+def _rows_of(order):
+    """int32 order position of each node: the inverse of ``order``."""
+    row_of_node = np.empty(order.shape[0], dtype=np.int32)
+    row_of_node[order] = np.arange(order.shape[0])
+    return row_of_node
+
+
+def _parent_rows(order, parent, row_of_node):
+    """int32 order position of each position's parent (-1 for the root): a layout's ``parent_row``."""
+    parents = parent[order]
+    return np.where(parents >= 0, row_of_node[np.maximum(parents, 0)], -1).astype(np.int32)
 
 
 @njit(cache=True, parallel=True)
@@ -1280,12 +1280,10 @@ def tree_layout(tree: MinimumSpanningTree) -> TreeLayout:
     """
     if not tree._layout:
         node_count = tree.order.shape[0]
-        row_of_pixel = np.empty(node_count, dtype=np.int32)
-        row_of_pixel[tree.order] = np.arange(node_count)
-        parents = tree.parent[tree.order]
-        parent_row = np.where(parents >= 0, row_of_pixel[np.maximum(parents, 0)], -1).astype(np.int32)
+        row_of_pixel = _rows_of(tree.order)
         tree._layout.append(TreeLayout(pixel_of_row=tree.order, row_of_pixel=row_of_pixel,
-                                       rows=np.arange(node_count, dtype=np.int32), parent_row=parent_row,
+                                       rows=np.arange(node_count, dtype=np.int32),
+                                       parent_row=_parent_rows(tree.order, tree.parent, row_of_pixel),
                                        weight_row=tree.weight[tree.order], height=tree.height,
                                        width=tree.width))
     return tree._layout[0]
