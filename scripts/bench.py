@@ -22,10 +22,13 @@ Sections (each timed in this one run, so the ratios compare like with like):
    (3) rounds, each timing every point in a fresh subprocess (even rounds forward, odd
    ones backward, so a drift of the machine's speed falls on all points alike); each
    subprocess decodes once at the point's size (reported apart: it also pays for the
-   host backing new memory) before the timed decode from fresh memory, and then decodes
-   again on the volumes that one left (what a batch's later frames run on: the decoder's
-   own cost, without the host's price for new memory).  Points whose memory estimate
-   exceeds ``--budget`` (8 GiB) run tiled under that budget and are marked so.
+   host backing new memory) before three timed decodes from fresh memory (their median
+   and the cheapest), and then decodes again on the volumes those left (what a batch's
+   later frames run on: the decoder's own cost, without the price of new memory).  Points
+   whose memory estimate exceeds ``--budget`` (8 GiB) run tiled under that budget and are
+   marked so.  Before it, a probe of what new memory costs the machine (first write of
+   256 MiB recycled at once vs after 3 s idle: a guest that reports free pages to its
+   host pays ~10x for the second).
 4. Command line: the process wall time of a single-shot ``sb-decode`` on Teddy with a
    warm numba cache (what a cron job pays per call), and of ``sb-encode --raw``, which
    must not import numpy, numba or OpenCV (checked).  ``--cli-env VENV`` times the
@@ -460,6 +463,8 @@ times, cpus = [], []
 for _ in range(repeats):
     # Every timed decode starts from fresh memory, as the first decode of a process does:
     # spare volumes would be reused (the small points' always, within scratch.SPARE_BYTES).
+    # Its price depends on how long ago the guest freed that memory (the memory-price
+    # probe): so several such decodes, their median and the cheapest both reported.
     scratch.release()
     c, t = time.process_time(), time.perf_counter()
     res = decode(left, samples, max_disp=nd - 1, method=method, max_memory=budget)
@@ -473,10 +478,60 @@ for _ in range(repeats):
     reused_times.append(time.perf_counter() - t); reused_cpus.append(time.process_time() - c)
 peak = rss("VmHWM:") if reset else resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024
 med = lambda values: sorted(values)[len(values) // 2]
-print(json.dumps({"wall": med(times), "cpu": med(cpus), "reused_wall": med(reused_times),
+print(json.dumps({"wall": med(times), "cpu": med(cpus), "min_wall": min(times), "min_cpu": min(cpus),
+                  "reused_wall": med(reused_times),
                   "reused_cpu": med(reused_cpus), "first_wall": first_wall, "first_cpu": first_cpu,
                   "peak": peak, "base": base, "tile_rows": tiles, "reset": reset}))
 """
+
+
+# What new memory costs this machine: the first write of 256 MB that the process's
+# allocator has just handed back to the system (recycled at once: the guest kernel zeroes
+# pages it still has), against the same after 3 s idle.  A guest whose free pages are
+# reported to the host (virtio-balloon free page reporting) has those pages taken back
+# within ~1-2 s, and the host backs them anew on the next touch.  Alternating, 3 each.
+_MEMORY_PRICE_CHILD = r"""
+import ctypes, json, time
+import numpy as np
+libc = ctypes.CDLL(None)
+n_bytes = 256 * 2 ** 20
+def first_write():
+    t = time.perf_counter()
+    block = np.empty(n_bytes // 4, np.float32)
+    block[...] = 1.0
+    seconds = time.perf_counter() - t
+    del block
+    libc.malloc_trim(0)
+    return seconds
+first_write()
+prices = {"recycled": [], "idle": []}
+for _ in range(3):
+    for mode, nap in (("recycled", 0.0), ("idle", 3.0)):
+        time.sleep(nap)
+        prices[mode].append(first_write() * 1e3 / (n_bytes / 2 ** 20))
+block = np.empty(n_bytes // 4, np.float32); block[...] = 1.0
+t = time.perf_counter(); block[...] = 2.0; rewrite = (time.perf_counter() - t) * 1e3 / (n_bytes / 2 ** 20)
+print(json.dumps({"recycled": prices["recycled"], "idle": prices["idle"], "rewrite": rewrite}))
+"""
+
+
+def memory_price() -> dict:
+    """The first write of new memory, ms per MiB: recycled at once vs after 3 s idle."""
+    return _run_child(_MEMORY_PRICE_CHILD, {}, timeout=120)
+
+
+def memory_price_report(r: dict) -> list[str]:
+    if "error" in r:
+        return [f"Memory price probe failed: {r['error']}", ""]
+    fmt = lambda values: ", ".join(f"{v:.2f}" for v in values)
+    return ["### What new memory costs this machine (first write of 256 MiB, ms per MiB; 3 of each, "
+            "alternating)", "",
+            f"* memory the allocator handed back and took again at once: {fmt(r['recycled'])}",
+            f"* the same after 3 s idle: {fmt(r['idle'])}",
+            f"* writing memory already backed: {r['rewrite']:.2f}", "",
+            "A decode on fresh memory pays the first of these per MiB of its volumes (two float32 "
+            "volumes of N·D for Hybrid: 8 bytes per pixel × disparity), or the second when the memory "
+            "was idle long enough for the guest to give it back to the host.", ""]
 
 
 def scaling(*, sizes, disparities, methods, budget: int, repeats: int, per_point_timeout: float,
@@ -516,6 +571,7 @@ def scaling(*, sizes, disparities, methods, budget: int, repeats: int, per_point
         point["ns_per_nd"] = point["wall"] / pixels_layers * 1e9
         point["cpu_ns_per_nd"] = point["cpu"] / pixels_layers * 1e9
         point["cpu_ns_per_nd_runs"] = [run["cpu"] / pixels_layers * 1e9 for run in good]
+        point["min_cpu_ns_per_nd"] = _median([run["min_cpu"] for run in good]) / pixels_layers * 1e9
         point["first_cpu_ns_per_nd"] = _median([run["first_cpu"] for run in good]) / pixels_layers * 1e9
         point["reused_cpu_ns_per_nd"] = _median([run["reused_cpu"] for run in good]) / pixels_layers * 1e9
         point["reused_cpu_ns_per_nd_runs"] = [run["reused_cpu"] / pixels_layers * 1e9 for run in good]
@@ -527,22 +583,24 @@ def scaling_report(rows: list[dict], budget: int) -> list[str]:
     rounds = max((len(p.get("runs", [])) for p in rows), default=1)
     lines = [f"### Scaling (synthetic smooth texture, stride 5; {rounds} round(s) of one fresh process per "
              "point, the rounds in alternating order; in each process a first decode at the point's size, "
-             "then the timed one from fresh memory, then one on the volumes it left (a batch's later "
-             "frames); medians over the rounds)", "",
+             "then the timed ones from fresh memory (their median, and the cheapest of them), then ones on "
+             "the volumes they left (a batch's later frames); medians over the rounds)", "",
              "| method | size | disparities | wall s | ns / (px·disp), wall | CPU | CPU, the rounds | "
-             "CPU, first decode | reused volumes: wall, CPU | CPU reused, the rounds | peak RSS | est. | note |",
-             "|---|---|---:|---:|---:|---:|---|---:|---:|---|---:|---:|---|"]
+             "CPU, cheapest fresh | CPU, first decode | reused volumes: wall, CPU | CPU reused, the rounds | "
+             "peak RSS | est. | note |",
+             "|---|---|---:|---:|---:|---:|---|---:|---:|---:|---|---:|---:|---|"]
     for p in rows:
         size = f"{p['w']}x{p['h']} ({p['mp']:g} MP)"
         if "error" in p:
-            lines.append(f"| {p['method']} | {size} | {p['nd']} | – | – | – | – | – | – | – | – | "
+            lines.append(f"| {p['method']} | {size} | {p['nd']} | – | – | – | – | – | – | – | – | – | "
                          f"{p['estimate'] / GIB:.1f} GiB | failed: {p['error']} |")
             continue
         note = f"tiled, bands of {p['tile_rows']} rows (budget {budget / GIB:.0f} GiB)" if p.get("tile_rows") else ""
         spread = ", ".join(f"{v:.1f}" for v in p.get("cpu_ns_per_nd_runs", []))
         reused_spread = ", ".join(f"{v:.1f}" for v in p.get("reused_cpu_ns_per_nd_runs", []))
         lines.append(f"| {p['method']} | {size} | {p['nd']} | {p['wall']:.2f} | {p['ns_per_nd']:.1f} | "
-                     f"{p['cpu_ns_per_nd']:.1f} | {spread} | {p.get('first_cpu_ns_per_nd', float('nan')):.1f} | "
+                     f"{p['cpu_ns_per_nd']:.1f} | {spread} | {p.get('min_cpu_ns_per_nd', float('nan')):.1f} | "
+                     f"{p.get('first_cpu_ns_per_nd', float('nan')):.1f} | "
                      f"{p.get('reused_ns_per_nd', float('nan')):.1f}, {p.get('reused_cpu_ns_per_nd', float('nan')):.1f} | "
                      f"{reused_spread} | {p['peak'] / GIB:.2f} GiB | {p['estimate'] / GIB:.1f} GiB | {note} |")
     for method in sorted({p["method"] for p in rows}):
@@ -558,6 +616,8 @@ def scaling_report(rows: list[dict], budget: int) -> list[str]:
     # then the same on reused volumes (a batch's later frames: no new memory) and for the
     # processes' first decodes (which carry the host's memory backing).
     for key, what in (("cpu_ns_per_nd", "CPU ns/(px·disp)"),
+                      ("min_cpu_ns_per_nd", "fresh memory, the cheapest of the process's fresh decodes, "
+                                            "CPU ns/(px·disp)"),
                       ("reused_cpu_ns_per_nd", "reused volumes, CPU ns/(px·disp)"),
                       ("first_cpu_ns_per_nd", "first decode, CPU ns/(px·disp)")):
         for method in sorted({p["method"] for p in rows}):
@@ -905,8 +965,10 @@ def main(argv=None) -> int:
         results["memory"] = memory_benchmark(data_dir, repeats=repeats)
     if "scaling" in sections:
         sizes, disps = ((0.25, 1.0), (64,)) if args.quick else ((0.25, 1.0, 4.0), (64, 128, 256))
+        print("memory price ...", file=sys.stderr, flush=True)
+        results["memory_price"] = memory_price()
         results["scaling"] = scaling(sizes=sizes, disparities=disps, methods=tuple(args.scaling_methods.split(",")),
-                                     budget=budget, repeats=1, per_point_timeout=3600,
+                                     budget=budget, repeats=1 if args.quick else 3, per_point_timeout=3600,
                                      rounds=1 if args.quick else args.scaling_rounds)
     if "reuse" in sections:
         results["reuse"] = reuse_benchmark(repeats=3 if args.quick else 6)
@@ -934,6 +996,8 @@ def main(argv=None) -> int:
         report += teddy_report(results["teddy"])
     if "memory" in results:
         report += memory_report(results["memory"])
+    if "memory_price" in results:
+        report += memory_price_report(results["memory_price"])
     if "scaling" in results:
         report += scaling_report(results["scaling"], budget)
     if "reuse" in results:
