@@ -7,10 +7,11 @@ Sections (each timed in this one run, so the ratios compare like with like):
    threading layer and thread count, and the load average (the machine may be shared).
 2. Teddy (450x375, 61 disparities) at stride 5, Sparse and Hybrid: per-stage times from
    ``DecodeResult.timings`` and the total in-process time (median of ``--repeats`` runs
-   after a warm-up, wall and CPU), each decode followed by OpenCV's StereoSGBM
+   after a warm-up, wall and CPU), each pair of decodes followed by OpenCV's StereoSGBM
    (``STEREO_SGBM_MODE_SGBM_3WAY``, 64 disparities, block 5, OpenCV's default threads)
    on the full pair, after a 50 ms pause, twice: the ratio ours / SGBM of the method's own
-   block takes the second call (the first also pays for waking idle cores).  Also the
+   block takes the second call of each side (a first call after the other side's work
+   also pays for the pause: caches, idle cores); the first calls are reported too.  Also the
    stages of the right-image recovery (warp, inpaint, enhance: ``sb-decode --right``),
    timed separately.
    Memory: the bandwidth of one pass over a Teddy volume, the tree aggregation of
@@ -505,7 +506,7 @@ print(json.dumps({"wall": med(times), "cpu": med(cpus), "min_wall": min(times), 
 """
 
 
-# What new memory costs this machine: the first write of 256 MB that the process's
+# What new memory costs this machine: the first write of 256 MiB that the process's
 # allocator has just handed back to the system (recycled at once: the guest kernel zeroes
 # pages it still has), against the same after 3 s idle.  A guest whose free pages are
 # reported to the host (virtio-balloon free page reporting) has those pages taken back
