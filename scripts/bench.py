@@ -208,7 +208,7 @@ def teddy_benchmark(data_dir: Path, *, repeats: int, methods=("sparse", "hybrid"
             # Each side is timed by the same rule: the second of two calls in a row after the
             # other side's work.  A first call after a pause of the process pays for it
             # (caches, the idle vCPU) whichever the matcher: SGBM's first call ~10 % slower,
-            # our first decode after SGBM ~7 % (2026-12-03, twenty-second session; it is as
+            # our first decode after SGBM ~7 % (it is as
             # slow after a bare 50 ms sleep, so not SGBM's threads).  Both first calls are
             # kept and reported.
             t = time.perf_counter()
@@ -225,7 +225,7 @@ def teddy_benchmark(data_dir: Path, *, repeats: int, methods=("sparse", "hybrid"
             # But after the pause the idle vCPUs must be woken, which a VM's host may take
             # its time over: the first call pays for it (a Firecracker guest, 2026-12-03: in
             # this loop 10.96 against 10.47 ms, medians of 30; SGBM alone after 50 ms sleeps
-            # 16.7 against 10.4 ms back to back, docs/performance.md).  The ratio takes the
+            # 16.7 against 10.4 ms back to back, scripts/bench.py).  The ratio takes the
             # second call, as it takes our second decode: the steady state of a process
             # matching a stream of frames.
             t = time.perf_counter()
@@ -292,7 +292,7 @@ def teddy_report(r: dict) -> list[str]:
                  + " | ".join(_fmt_s(m.get("first_wall", float("nan"))) for m in r["methods"].values()) + " |")
     lines.append("| ours / SGBM, wall, the first calls | "
                  + " | ".join(f"{m.get('ratio_first', float('nan')):.2f}x" for m in r["methods"].values()) + " |")
-    lines.append("| our first decode / SGBM's second call (the ratio up to the twenty-first session) | "
+    lines.append("| our first decode / SGBM's second call (an older reading of the ratio) | "
                  + " | ".join(f"{m.get('ratio_first_vs_second', float('nan')):.2f}x" for m in r["methods"].values())
                  + " |")
     lines.append("| total decode, wall, fresh memory (no spare volumes) | "

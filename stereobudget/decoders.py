@@ -90,7 +90,7 @@ class DecoderParams:
         Resolution of the bilateral grid of the Sparse fill: grid cells per spatial and
         per range sigma (:func:`stereobudget.bilateral.grid_geometry`).  One cell per
         sigma is Paris & Durand's sampling rate; the grid blur is narrowed so the
-        effective kernel keeps its sigma, and the sweep in docs/performance.md
+        effective kernel keeps its sigma, and the sweep recorded in the commit history
         (``scripts/sweep.py``) finds every scene within 0.2 pp of 2 cells per
         sigma at strides 3, 5 and 8, for 1/8 of the grid cells.
     right_check : {"tree", "diagonal"}
@@ -99,7 +99,7 @@ class DecoderParams:
         image's own tree (Yang); ``"diagonal"`` reads it off the left view's aggregated
         costs, normalised by each pixel's tree support (Hirschmüller's search), which
         saves a tree and an aggregation but lets more errors pass the check: measured
-        0.3-0.5 pp worse on the 9-scene mean, up to 2.5 pp on Teddy (docs/performance.md).
+        0.3-0.5 pp worse on the 9-scene mean, up to 2.5 pp on Teddy (scripts/bench.py).
     """
 
     sigma_r: float = 15.0
@@ -465,7 +465,7 @@ def _decode_whole_frame(left, samples, *, max_disp, min_disp, method, params, ma
 #: Rows decoded above and below each band and then dropped.  The sparse fill reaches
 #: ~4 sigma_s (40 px at stride 5), but the tree aggregation and, above all, Hybrid's
 #: left-right refinement are global: unstable pixels take disparities from far along
-#: the tree.  docs/performance.md measures the seams against the overlap (Teddy, Cones,
+#: the tree.  scripts/tile_overlap.py measures the seams against the overlap (Teddy, Cones,
 #: 1x and 2x, bands of 96 / 192 rows): 64 rows suffice for Sparse but cost Hybrid up to
 #: 0.7 pp; with 128 the bad-pixel rate stays within 0.05 pp of untiled in all 8 cases.
 DEFAULT_TILE_OVERLAP = 128

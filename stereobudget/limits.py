@@ -84,7 +84,7 @@ def volume_layers(num_disp: int) -> int:
     independent of the rest) but never allowed to win.  Rows of whole 32-byte vectors
     leave no scalar tail in any per-pixel loop and keep the rows of 64 layers on cache
     lines: Teddy's 61 disparities decode faster as 64 layers than as 61 (the cost kernel
-    ~14 %, docs/performance.md).
+    ~14 %, scripts/bench.py).
     """
     num_disp = int(num_disp)
     return -(-num_disp // LAYER_QUANTUM) * LAYER_QUANTUM

@@ -11,7 +11,7 @@ largest first when they do not all fit); larger ones (the cost volumes of frames
 size begins (:func:`frame`: they are dropped before its volumes are allocated, so stale
 volumes are never held beside new ones).  New memory costs
 the most there: 1-4 MP decodes took 9-35 % less CPU time on reused volumes
-(docs/performance.md, ninth session).  :func:`spare_bytes` tells the memory check what
+(measured with scripts/bench.py --sections reuse).  :func:`spare_bytes` tells the memory check what
 is held; :func:`release` drops everything.  A single decode in a fresh process (one
 ``sb-decode`` call) gains nothing and loses nothing.
 
@@ -73,7 +73,7 @@ def keep_freed_memory() -> bool:
 
     glibc returns large freed blocks to the system, so the next decode's arrays are
     fresh pages that fault on first touch (~2000 faults and 5-15 ms per Hybrid decode of
-    Teddy on the benchmark machine, docs/performance.md).  This raises glibc's mmap
+    Teddy on the benchmark machine, scripts/bench.py).  This raises glibc's mmap
     threshold to its maximum and its trim threshold to :data:`SPARE_BYTES`, so blocks are
     reused instead; the process keeps up to that much freed memory.  Called by
     :func:`stereobudget.decode`; set ``STEREOBUDGET_KEEP_FREED_MEMORY=0`` to leave the
