@@ -1,7 +1,34 @@
 """stereobudget: depth and the right image from a full left image plus sparse right-image samples.
 
-The camera side (:mod:`stereobudget.container`, :mod:`stereobudget.sampling`) imports
-neither numba nor OpenCV; the decoder is loaded on first use of :func:`decode`.
+The library is grouped by topic; each subpackage re-exports its public names:
+
+- :mod:`stereobudget.io` — the sample file, raw sample grids, images, disparity files,
+  atomic writes, size and memory limits.
+- :mod:`stereobudget.sampling` — where the right camera samples (grid, random, adaptive,
+  farthest-point), and the block means Downsample sends.
+- :mod:`stereobudget.cost` — matching costs.  **Eq. 1**, the sparse DSI (the cost of each
+  left pixel against the right samples): :func:`stereobudget.cost.sparse_pair_cost`.
+- :mod:`stereobudget.fill` — **Eq. 2**, the joint bilateral fill of the sparse DSI:
+  :func:`stereobudget.fill.filled_sparse_dsi` (the grids of :func:`stereobudget.fill.sparse_dsi_grids`);
+  the low-passed pair Hybrid and Downsample use (:func:`stereobudget.fill.gaussian_lowpass`,
+  :func:`stereobudget.fill.block_lowpass`).
+- :mod:`stereobudget.aggregate` — **Eq. 3**, aggregation on the minimum spanning tree:
+  :func:`stereobudget.aggregate.aggregate`; the cost volumes of both views
+  (:func:`stereobudget.aggregate.pair_cost_rows`, where **Hybrid's mix** of the Sparse fill
+  and the dense DSI of the low-passed pair is taken per pixel), winner-take-all and the
+  left-right check with refinement.
+- :mod:`stereobudget.decoding` — the decoders of paper Fig. 2 (Sparse, Hybrid, Downsample,
+  and the full pair), their parameters (Hybrid's weight: :func:`stereobudget.decoding.hybrid_weight`),
+  tiling and the memory estimate.  :func:`decode` is the entry point.
+- :mod:`stereobudget.synthesis` — the right image recovered from I1 and the disparity:
+  **the warp for Î2** (:func:`stereobudget.synthesis.warp_left_to_right`), then the samples
+  fill the holes (:func:`stereobudget.synthesis.recover_right`).
+- :mod:`stereobudget.batch` — many inputs in one run; :mod:`stereobudget.cli` — the
+  ``sb-encode`` / ``sb-decode`` commands; :mod:`stereobudget.scenes` — synthetic scenes
+  with exact ground truth.
+
+The camera side (:mod:`stereobudget.io`, :mod:`stereobudget.sampling`) imports neither numba
+nor OpenCV; the decoder is loaded on first use of :func:`decode`.
 """
 
 from ._version import __version__
@@ -12,6 +39,6 @@ __all__ = ["__version__", "decode", "DecoderParams", "DecodeResult"]
 def __getattr__(name):
     # Lazy: importing the decoder compiles/loads numba kernels, which the camera side never needs.
     if name in ("decode", "DecoderParams", "DecodeResult"):
-        from . import decoders
+        from .decoding import _decoders as decoders
         return getattr(decoders, name)
     raise AttributeError(f"module 'stereobudget' has no attribute {name!r}")

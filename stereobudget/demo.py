@@ -16,9 +16,9 @@ from pathlib import Path
 
 def write_demo_pair(out_dir, *, kind: str = "slanted", seed: int = 0) -> dict:
     """Render a synthetic pair into ``out_dir``; returns paths and the disparity range."""
-    from .dispio import write_disparity
-    from .imageio import write_image
-    from .scenes import make_scene
+    from .io._disparity import write_disparity
+    from .io._images import write_image
+    from .scenes._scenes import make_scene
 
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)

@@ -1,0 +1,970 @@
+"""Many files at once: input expansion, output templates, per-file jobs and their runners.
+
+The CLI commands are thin; everything a batch needs lives here so that other programs
+(and dask workers) can use it:
+
+* :func:`expand_inputs` turns arguments (files, folders, quoted globs) into a file list;
+  :func:`expand_template` turns an output template (``out/{stem}.sbs``) into a path.
+* :func:`pair_by_stem` / :func:`read_manifest` build the (left, samples) pairs of a
+  decoding batch; a left image without its sample file (or the reverse) becomes a job
+  that fails with a clear message instead of vanishing.
+* :class:`EncodeJob` / :class:`DecodeJob` describe one file's work with plain, picklable
+  values; :func:`encode_job` / :func:`decode_job` do it and *never raise* for bad input:
+  they return a small JSON-able dict with ``status`` ``"ok"``, ``"skipped"`` or
+  ``"failed"`` (plus ``error``, ``error_class`` and ``exit_code`` on failure).
+* :func:`run_jobs` runs jobs in-process (1 job), in a local process pool, or on a
+  dask.distributed cluster, and yields the result dicts as they complete.
+
+Up-to-date rule (as ``make`` does): in a batch, a job whose outputs all exist and are at
+least as new as all its inputs is skipped; if any output is missing or older than an
+input, the job is redone and its outputs are replaced.  ``overwrite=True`` redoes every
+job.  Outputs are always written atomically, so an interrupted batch leaves complete
+outputs (skipped on the next run) and no partial ones.
+
+This module imports neither numba nor OpenCV: the camera-side ``sb-encode`` uses it.
+"""
+
+from __future__ import annotations
+
+import csv
+import glob
+import logging
+import os
+import signal
+import string
+import sys
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Callable, Iterable, Iterator
+
+from ..io._atomic import STDIO, check_output_path, display_name, redeliver_swallowed_interrupts
+from ..errors import MemoryLimitError, OptionError, OutputError, StereoBudgetError
+from ..decoding._methods import DEFAULT_METHOD
+
+log = logging.getLogger("stereobudget")
+
+#: Extensions listed when a folder of images is given as input.
+IMAGE_EXTENSIONS = (".png", ".tif", ".tiff", ".jpg", ".jpeg", ".ppm", ".pgm", ".pnm", ".bmp", ".webp")
+#: Extension listed when a folder of sample files is given as input.
+SAMPLE_EXTENSIONS = (".sbs",)
+#: Fields an output template may use.
+TEMPLATE_FIELDS = ("stem", "name", "parent")
+
+_GLOB_CHARS = frozenset("*?[")
+
+
+# =====================================================================================
+# Inputs and output templates
+# =====================================================================================
+
+def _looks_like_glob(text: str) -> bool:
+    return any(ch in _GLOB_CHARS for ch in text)
+
+
+def expand_inputs(arguments: Iterable[str], *, extensions: tuple[str, ...] | None = IMAGE_EXTENSIONS,
+                  what: str = "image") -> list[str]:
+    """Expand input arguments into a list of file names, in a stable order.
+
+    Parameters
+    ----------
+    arguments : iterable of str
+        Each is ``-`` (standard input), an existing file (taken literally, even when
+        its name contains ``*`` or ``[``), a folder (its files with one of
+        ``extensions``, sorted, hidden files excluded), or a glob pattern (expanded
+        here, ``**`` included, so a quoted pattern works the same in every shell).
+    extensions : tuple of str or None
+        Lower-case extensions listed from folders (None: every file).
+    what : str
+        What the files are, for messages ("image", "sample file").
+
+    Returns
+    -------
+    list of str
+        File names; a name that does not exist and is not a pattern is kept (the job
+        reading it reports "no such file").  Duplicates are dropped.
+
+    Raises
+    ------
+    OptionError
+        A pattern matches no file, or a folder holds no file of the expected kind.
+    """
+    result: list[str] = []
+    for argument in arguments:
+        argument = str(argument)
+        if argument == STDIO:
+            found = [argument]
+        elif os.path.isdir(argument):
+            found = sorted(str(p) for p in Path(argument).iterdir()
+                           if p.is_file() and not p.name.startswith(".")
+                           and (extensions is None or p.suffix.lower() in extensions))
+            if not found:
+                kinds = f" ({', '.join(extensions)})" if extensions else ""
+                raise OptionError(f"folder {argument!r} holds no {what}{kinds}")
+        elif os.path.exists(argument) or not _looks_like_glob(argument):
+            found = [argument]
+        else:
+            found = sorted(p for p in glob.glob(argument, recursive=True) if os.path.isfile(p))
+            if not found:
+                raise OptionError(f"no file matches {argument!r}")
+        result.extend(found)
+    seen: set[str] = set()
+    unique = []
+    for name in result:
+        if name not in seen:
+            seen.add(name)
+            unique.append(name)
+    return unique
+
+
+def _template_parts(template: str, option: str):
+    try:
+        return list(string.Formatter().parse(template))
+    except ValueError as exc:
+        raise OptionError(f"{option} {template!r}: bad template ({exc}); write a literal brace "
+                          "as {{ or }}") from None
+
+
+def has_template(template: str | None, option: str = "output") -> bool:
+    """Whether ``template`` uses a field such as ``{stem}`` (``{{`` is a literal brace)."""
+    if template is None:
+        return False
+    return any(name is not None for _, name, _, _ in _template_parts(str(template), option))
+
+
+def template_fields(source: str) -> dict:
+    """The values of the template fields for input ``source``.
+
+    ``{stem}`` file name without its last extension, ``{name}`` file name, ``{parent}``
+    the folder holding the input as it was given (``.`` for a bare file name).
+    """
+    path = Path(source)
+    return {"stem": path.stem, "name": path.name, "parent": str(path.parent)}
+
+
+def expand_template(template: str, source: str, *, option: str = "output") -> str:
+    """Fill ``{stem}``, ``{name}`` and ``{parent}`` of ``template`` from the input ``source``.
+
+    Raises
+    ------
+    OptionError
+        Unknown field, conversion/format spec, or unbalanced braces.
+    """
+    values = template_fields(source)
+    pieces = []
+    for literal, name, spec, conversion in _template_parts(str(template), option):
+        pieces.append(literal)
+        if name is None:
+            continue
+        if name not in values or spec or conversion:
+            raise OptionError(f"{option} {template!r}: unknown template field {{{name}"
+                              f"{'!' + conversion if conversion else ''}{':' + spec if spec else ''}}}; "
+                              f"use {{stem}}, {{name}} or {{parent}} (a literal brace is {{{{ or }}}})")
+        pieces.append(values[name])
+    return "".join(pieces)
+
+
+def output_for(template: str | None, source: str, *, option: str) -> str | None:
+    """``template`` expanded for ``source`` (None stays None, a plain name stays as it is)."""
+    if template is None:
+        return None
+    return expand_template(template, source, option=option)
+
+
+def check_distinct_outputs(jobs, *, key: Callable) -> None:
+    """Refuse a batch in which two jobs would write the same file.
+
+    ``key(job)`` returns the job's output paths (None entries are ignored).
+    """
+    owner: dict[str, object] = {}
+    for job in jobs:
+        for out in key(job):
+            if out is None or out == STDIO:
+                continue
+            norm = os.path.normpath(os.path.abspath(out))
+            if norm in owner:
+                raise OptionError(f"two inputs would write the same output {out!r} "
+                                  f"({owner[norm]} and {job.label}); add {{parent}} or change the template")
+            owner[norm] = job.label
+
+
+# =====================================================================================
+# Pairing left images with sample files
+# =====================================================================================
+
+@dataclass(frozen=True)
+class Pair:
+    """One decoding input: a left image and its sample file (either may be missing)."""
+
+    stem: str
+    left: str | None
+    samples: str | None
+    max_disp: int | None = None
+    min_disp: int | None = None
+    problem: str | None = None
+
+    @property
+    def template_source(self) -> str:
+        # Templates take their fields from the left image; the stem is the pairing key.
+        return self.left if self.left is not None else self.samples
+
+
+def pair_by_stem(lefts: list[str], samples: list[str]) -> list[Pair]:
+    """Match left images and sample files with the same stem (``a.png`` <-> ``a.sbs``).
+
+    Every unmatched or ambiguous name is kept as a :class:`Pair` with ``problem`` set,
+    so the batch reports it as a failed item.  Pairs are sorted by stem.
+    """
+    def by_stem(names):
+        table: dict[str, list[str]] = {}
+        for name in names:
+            table.setdefault(Path(name).stem, []).append(name)
+        return table
+
+    left_by, samples_by = by_stem(lefts), by_stem(samples)
+    pairs = []
+    for stem in sorted(set(left_by) | set(samples_by)):
+        ls, ss = left_by.get(stem, []), samples_by.get(stem, [])
+        problem = None
+        if len(ls) > 1:
+            problem = f"several left images share the stem {stem!r}: {', '.join(ls)}"
+        elif len(ss) > 1:
+            problem = f"several sample files share the stem {stem!r}: {', '.join(ss)}"
+        elif not ss:
+            problem = f"no sample file with the stem {stem!r} for this left image"
+        elif not ls:
+            problem = f"no left image with the stem {stem!r} for this sample file"
+        pairs.append(Pair(stem=stem, left=ls[0] if ls else None, samples=ss[0] if ss else None,
+                          problem=problem))
+    return pairs
+
+
+def _manifest_int(value: str, column: str, where: str) -> int | None:
+    value = (value or "").strip()
+    if not value:
+        return None
+    try:
+        return int(value)
+    except ValueError:
+        raise OptionError(f"{where}: column {column} must be an integer, got {value!r}") from None
+
+
+def read_manifest(path: str) -> list[Pair]:
+    """Read a CSV manifest of decoding pairs.
+
+    Columns ``left,samples[,max_disp[,min_disp]]``; a first row naming the columns
+    (``left,samples,...`` in any order) is optional.  Relative paths are relative to the
+    manifest's folder; empty lines and lines starting with ``#`` are ignored.
+
+    Raises
+    ------
+    OptionError
+        Unreadable file, unknown column, a row with fewer than two fields, or a
+        non-integer disparity.
+    """
+    try:
+        with open(path, newline="", encoding="utf-8") as handle:
+            rows = [row for row in csv.reader(handle)]
+    except OSError as exc:
+        raise OptionError(f"cannot read the manifest: {exc.strerror or exc}", path=str(path)) from None
+    except (UnicodeDecodeError, csv.Error) as exc:
+        raise OptionError(f"not a CSV text file ({exc})", path=str(path)) from None
+    base = Path(path).parent
+    columns = ["left", "samples", "max_disp", "min_disp"]
+    pairs: list[Pair] = []
+    header_seen = False
+    for number, row in enumerate(rows, start=1):
+        cells = [c.strip() for c in row]
+        if not any(cells) or cells[0].startswith("#"):
+            continue
+        where = f"{path}:{number}"
+        if not header_seen and not pairs and "left" in [c.lower() for c in cells]:
+            names = [c.lower() for c in cells]
+            unknown = [c for c in names if c not in columns]
+            if unknown or "samples" not in names:
+                raise OptionError(f"{where}: header must name the columns left, samples "
+                                  f"[, max_disp, min_disp], got {', '.join(cells)}")
+            columns = names
+            header_seen = True
+            continue
+        if len(cells) < 2:
+            raise OptionError(f"{where}: expected at least two columns (left, samples), got {len(cells)}")
+        if len(cells) > len(columns):
+            raise OptionError(f"{where}: {len(cells)} columns, expected at most {len(columns)}")
+        record = dict(zip(columns, cells))
+        if not record.get("left") or not record.get("samples"):
+            raise OptionError(f"{where}: empty left or samples path")
+        left = str(base / record["left"]) if not os.path.isabs(record["left"]) else record["left"]
+        samples = (str(base / record["samples"]) if not os.path.isabs(record["samples"])
+                   else record["samples"])
+        pairs.append(Pair(stem=Path(left).stem, left=left, samples=samples,
+                          max_disp=_manifest_int(record.get("max_disp", ""), "max_disp", where),
+                          min_disp=_manifest_int(record.get("min_disp", ""), "min_disp", where)))
+    if not pairs:
+        raise OptionError("the manifest lists no pair", path=str(path))
+    return pairs
+
+
+# =====================================================================================
+# Up-to-date checks
+# =====================================================================================
+
+def _mtime_ns(path: str) -> int | None:
+    try:
+        return os.stat(path).st_mtime_ns
+    except OSError:
+        return None
+
+
+def outputs_up_to_date(outputs: Iterable[str], inputs: Iterable[str]) -> bool:
+    """True when every output exists and is at least as new as every input (``make``'s rule)."""
+    outputs = [o for o in outputs if o is not None]
+    if not outputs or any(o == STDIO for o in outputs):
+        return False
+    input_times = [_mtime_ns(i) for i in inputs if i is not None and i != STDIO]
+    if any(t is None for t in input_times):
+        return False             # a missing input: let the job report it
+    newest_input = max(input_times, default=0)
+    for out in outputs:
+        t = _mtime_ns(out)
+        if t is None or t < newest_input:
+            return False
+    return True
+
+
+def _prepare_outputs(outputs: list[str], inputs: list[str], *, overwrite: bool, make_dirs: bool) -> bool:
+    """Check the outputs of one job; return the ``overwrite`` flag to write them with.
+
+    In a batch (``make_dirs``) missing folders are created, and a stale output is
+    replaced (the caller has already skipped up-to-date jobs).
+    """
+    replace = overwrite
+    for out in outputs:
+        if out is None or out == STDIO:
+            continue
+        if make_dirs:
+            parent = Path(out).parent
+            if not parent.is_dir():
+                try:
+                    parent.mkdir(parents=True, exist_ok=True)
+                except OSError as exc:
+                    raise OutputError(f"cannot create the folder {str(parent)!r}: {exc.strerror or exc}",
+                                      path=out) from None
+            if os.path.exists(out):
+                replace = True      # stale (or partner of a missing output): redo as make would
+    for out in outputs:
+        if out is not None:
+            check_output_path(out, inputs, replace)
+    return replace
+
+
+# =====================================================================================
+# Jobs
+# =====================================================================================
+
+def _failure(exc: BaseException) -> dict:
+    if isinstance(exc, StereoBudgetError):
+        return {"error": str(exc), "error_class": type(exc).__name__, "exit_code": exc.exit_code}
+    if isinstance(exc, MemoryError):
+        return {"error": "out of memory", "error_class": "MemoryLimitError", "exit_code": 11}
+    # A bug, not bad input: keep the batch going but say what it was.
+    return {"error": f"unexpected {type(exc).__name__}: {exc}", "error_class": type(exc).__name__,
+            "exit_code": 1}
+
+
+_worker_threads: int | None = None
+
+
+def _limit_numba_threads(threads: int | None) -> None:
+    """Cap numba's threads in this process (several jobs on one machine share its cores)."""
+    threads = threads or _worker_threads
+    if not threads:
+        return
+    try:
+        import numba
+        numba.set_num_threads(max(1, min(int(threads), numba.config.NUMBA_NUM_THREADS)))
+    except Exception:        # a missing or old numba only costs speed
+        pass
+
+
+@dataclass(frozen=True)
+class EncodeJob:
+    """One ``sb-encode`` input.
+
+    Attributes
+    ----------
+    source, output : str
+        Right image (or ``-``) and sample file (or ``-``).
+    pattern : SamplingPattern
+    raw_size : (width, height) or None
+    pix_fmt : str or None
+    overwrite : bool
+        Replace existing outputs (in a batch: redo even up-to-date jobs).
+    batch : bool
+        Batch semantics: skip up-to-date outputs, replace stale ones, create folders.
+    """
+
+    source: str
+    output: str
+    pattern: object
+    raw_size: tuple | None = None
+    pix_fmt: str | None = None
+    overwrite: bool = False
+    batch: bool = False
+
+    @property
+    def label(self) -> str:
+        return display_name(self.source)
+
+
+def encode_job(job: EncodeJob) -> dict:
+    """Do one :class:`EncodeJob`; never raises for bad input.
+
+    Returns
+    -------
+    dict
+        ``status`` (``ok``/``skipped``/``failed``), ``input``, ``output``, ``timings``
+        and, when encoded, the fields of :class:`stereobudget.io.EncodeReport`
+        (``epsilon``, sizes...); on failure ``error``, ``error_class``, ``exit_code``.
+    """
+    start = time.perf_counter()
+    result = {"status": "ok", "input": display_name(job.source),
+              "output": "<stdout>" if job.output == STDIO else job.output}
+    _in_job(True)
+    try:
+        if job.batch and not job.overwrite and outputs_up_to_date([job.output], [job.source]):
+            result["status"] = "skipped"
+            return result
+        from ..io._samples import encode_file
+        overwrite = _prepare_outputs([job.output], [job.source], overwrite=job.overwrite,
+                                     make_dirs=job.batch)
+        report = encode_file(job.source, job.output, pattern=job.pattern, raw_size=job.raw_size,
+                             pix_fmt=job.pix_fmt, overwrite=overwrite)
+        result.update(report.as_dict())
+        result["input"] = report.source
+    except (StereoBudgetError, MemoryError) as exc:
+        result.update(status="failed", **_failure(exc))
+    except Exception as exc:  # noqa: BLE001 -- one bad file must not stop a batch
+        log.debug("unexpected error on %s", job.label, exc_info=True)
+        result.update(status="failed", **_failure(exc))
+    finally:
+        _in_job(False)
+        result["timings"] = {"total": round(time.perf_counter() - start, 4)}
+    return result
+
+
+@dataclass(frozen=True)
+class DecodeJob:
+    """One ``sb-decode`` pair.
+
+    Attributes
+    ----------
+    left, samples : str or None
+        Left image and sample file (``-`` = standard input for one of them).  None, with
+        ``problem`` set, is a pairing failure reported as a failed item.
+    disparity, preview, right : str or None
+        Outputs: disparity map (format by extension), colour preview PNG, recovered right
+        image Î2 (PNG/TIFF, input's channels and bit depth; ``-`` = standard output).
+    max_disp, min_disp : int
+    method : str or None
+        Decoder (None: the library default).
+    overwrite, batch : bool
+        As in :class:`EncodeJob`.
+    threads : int or None
+        Cap on numba threads in the worker.
+    problem : str or None
+        Why this pair cannot be decoded (set by the pairing step).
+    max_memory : int or None
+        Memory limit of the decode in bytes (None: 75 % of the available memory).
+    """
+
+    left: str | None
+    samples: str | None
+    disparity: str | None = None
+    preview: str | None = None
+    right: str | None = None
+    max_disp: int | None = None
+    min_disp: int = 0
+    method: str | None = None
+    overwrite: bool = False
+    batch: bool = False
+    threads: int | None = None
+    problem: str | None = None
+    max_memory: int | None = None
+
+    @property
+    def label(self) -> str:
+        return display_name(self.left if self.left is not None else self.samples)
+
+    @property
+    def outputs(self) -> dict:
+        return {k: v for k, v in (("disparity", self.disparity), ("preview", self.preview),
+                                  ("right", self.right)) if v is not None}
+
+
+def _as_image_dtype(image, dtype):
+    """Î2 in the input's bit depth; float images are in 8-bit units (the library convention)."""
+    import numpy as np
+
+    image = np.asarray(image)
+    dtype = np.dtype(dtype)
+    if image.dtype == dtype:
+        return image
+    if image.dtype.kind in "ui":
+        scale = (257.0 if dtype == np.uint16 else 1.0) / (257.0 if image.dtype == np.uint16 else 1.0)
+    else:
+        scale = 257.0 if dtype == np.uint16 else 1.0
+    top = np.iinfo(dtype).max
+    values = np.nan_to_num(image.astype(np.float64) * scale, nan=0.0)
+    return np.clip(np.rint(values), 0, top).astype(dtype)
+
+
+def _scalar_extras(obj) -> dict:
+    """JSON-able scalar facts from a synthesis result (``psnr_right_samples``...)."""
+    import math
+    import numbers
+
+    source = {}
+    if isinstance(obj, dict):
+        source = obj
+    elif hasattr(obj, "summary") and callable(obj.summary):
+        source = obj.summary()
+    elif hasattr(obj, "__dict__"):
+        source = vars(obj)
+    extras = {}
+    for key, value in source.items():
+        if isinstance(value, bool) or isinstance(value, (str,)):
+            extras[key] = value
+        elif isinstance(value, numbers.Integral):
+            extras[key] = int(value)
+        elif isinstance(value, numbers.Real):
+            # JSON has no inf/NaN: an infinite PSNR (exact match) or an undefined one is null.
+            extras[key] = float(value) if math.isfinite(value) else None
+    return extras
+
+
+def _right_synthesis():
+    """:func:`stereobudget.synthesis.recover_right`, or OptionError when it is not installed."""
+    import importlib
+    try:
+        return importlib.import_module("stereobudget.synthesis._synthesis").recover_right
+    except (ImportError, AttributeError) as exc:
+        raise OptionError(f"--right needs stereobudget.synthesis.recover_right, which this "
+                          f"installation lacks ({exc})") from None
+
+
+def recover_right_image(left, disparity, samples):
+    """Call :func:`stereobudget.synthesis.recover_right`; returns ``(image, extras)``.
+
+    ``extras`` holds the scalar facts the synthesis reports (PSNR at the samples...),
+    ``holes_fraction`` and, under ``"_timings"``, its stages.
+
+    Raises
+    ------
+    OptionError
+        The synthesis module is not available in this installation.
+    """
+    produced = _right_synthesis()(left, disparity, samples)
+    extras = {}
+    if isinstance(produced, tuple):
+        image = produced[0]
+        for extra in produced[1:]:
+            extras.update(_scalar_extras(extra))
+    elif hasattr(produced, "image"):
+        image = produced.image
+        extras.update(_scalar_extras(produced))
+        holes = getattr(produced, "holes", None)
+        if holes is not None and getattr(holes, "size", 0):
+            extras["holes_fraction"] = float(holes.mean())
+        for stage, seconds in (getattr(produced, "timings", None) or {}).items():
+            extras.setdefault("_timings", {})[f"right_{stage}"] = seconds
+    else:
+        image = produced
+    return image, extras
+
+
+def _check_output_formats(job: DecodeJob) -> None:
+    """Refuse unknown output extensions before any work is done."""
+    from ..io._disparity import DISPARITY_EXTENSIONS
+
+    def ext(path):
+        return Path(path).suffix.lower()
+
+    if job.disparity is not None:
+        if job.disparity == STDIO:
+            raise OutputError("a disparity map cannot go to standard output; give a file name", path="<stdout>")
+        if ext(job.disparity) not in DISPARITY_EXTENSIONS:
+            raise OutputError(f"unknown disparity format {ext(job.disparity) or '(no extension)'!r}; "
+                              f"use one of {', '.join(DISPARITY_EXTENSIONS)}", path=job.disparity)
+    if job.preview is not None and (job.preview == STDIO or ext(job.preview) != ".png"):
+        raise OutputError("a disparity preview is written as PNG; use a .png file name",
+                          path=display_name(job.preview).replace("<stdin>", "<stdout>"))
+    if job.right is not None and job.right != STDIO and ext(job.right) not in (".png", ".tif", ".tiff"):
+        raise OutputError(f"unsupported image extension {ext(job.right) or '(none)'!r}; "
+                          "use .png, .tif or .tiff", path=job.right)
+
+
+def decode_file(job: DecodeJob) -> dict:
+    """Decode one pair and write its outputs; raises on any problem.
+
+    This is the single-file path of ``sb-decode`` (errors keep their class and exit
+    code); batches use :func:`decode_job`, which wraps it.
+
+    Returns
+    -------
+    dict
+        JSON-able summary: inputs, size, channels, dtype, epsilon, method, disparity
+        range searched and found, ``valid_fraction``, ``timings`` per stage (``read``,
+        ``validate``, the decoder's stages, ``right``, ``write``, ``total``), outputs,
+        and any extra facts the decoder or the synthesis reports.
+    """
+    start = time.perf_counter()
+    if job.problem:
+        raise OptionError(job.problem, path=job.label)
+    if job.max_disp is None:
+        raise OptionError("no --max-disp for this pair (give --max-disp or a max_disp column)",
+                          path=job.label)
+    if job.left == STDIO and job.samples == STDIO:
+        raise OptionError("only one of LEFT and SAMPLES can be '-' (standard input)")
+    outputs = job.outputs
+    if not outputs:
+        raise OptionError("nothing to write: give --disparity, --preview and/or --right")
+    seen = {}
+    for kind, path in outputs.items():
+        if path != STDIO and path in seen:
+            raise OptionError(f"--{seen[path]} and --{kind} name the same file", path=path)
+        seen[path] = kind
+    _check_output_formats(job)
+    if job.right is not None:
+        _right_synthesis()          # fail before the work when --right cannot be honoured
+    inputs = [job.left, job.samples]
+    overwrite = _prepare_outputs(list(outputs.values()), inputs, overwrite=job.overwrite,
+                                 make_dirs=job.batch)
+    from ..io import _images as imageio
+    from ..io._samples import load_samples
+    timings: dict = {}
+
+    t = time.perf_counter()
+    left, _ = imageio.read_image(job.left)
+    samples = load_samples(job.samples)
+    timings["read"] = time.perf_counter() - t
+
+    # The decoder (numba) loads only once both inputs have been read successfully.
+    import numpy as np
+
+    from ..decoding import _decoders as decoders
+    from ..io import _disparity as dispio
+    from ..errors import MismatchError
+    _limit_numba_threads(job.threads)
+    t = time.perf_counter()
+    left_name, samples_name = display_name(job.left), display_name(job.samples)
+    try:
+        decoders.check_inputs(left, samples, min_disp=job.min_disp, max_disp=job.max_disp)
+    except (MismatchError, OptionError) as exc:
+        raise type(exc)(f"{exc.message} ({samples_name})", path=left_name) from None
+    timings["validate"] = time.perf_counter() - t
+
+    method = job.method or DEFAULT_METHOD
+    try:
+        result = decoders.decode(left, samples, max_disp=job.max_disp, min_disp=job.min_disp, method=method,
+                                 max_memory=job.max_memory)
+    except MemoryLimitError as exc:
+        raise MemoryLimitError(exc.message, path=left_name) from None
+    disparity = result.disparity
+    timings.update(result.timings)
+
+    extras = {}
+    right_image = None
+    if job.right is not None:
+        t = time.perf_counter()
+        right_image, extras = recover_right_image(left, disparity, samples)
+        right_image = _as_image_dtype(right_image, left.dtype)
+        timings.update(extras.pop("_timings", {}))
+        timings["right"] = time.perf_counter() - t
+
+    t = time.perf_counter()
+    if job.disparity is not None:
+        dispio.write_disparity(job.disparity, disparity, overwrite=overwrite)
+    if job.preview is not None:
+        dispio.write_preview(job.preview, disparity, min_disp=job.min_disp, max_disp=job.max_disp,
+                             overwrite=overwrite)
+    if right_image is not None:
+        imageio.write_image(job.right, right_image, channel_order="rgb" if right_image.ndim == 3 else "gray",
+                            overwrite=overwrite)
+    timings["write"] = time.perf_counter() - t
+    timings["total"] = time.perf_counter() - start
+
+    valid = np.isfinite(disparity)
+    summary = {
+        "status": "ok", "left": left_name, "samples": samples_name,
+        "width": int(left.shape[1]), "height": int(left.shape[0]),
+        "channels": 1 if left.ndim == 2 else int(left.shape[2]), "dtype": str(left.dtype),
+        "sample_count": int(samples.values.shape[0]), "epsilon": samples.epsilon,
+        "pattern": samples.pattern.kind, "stride_x": samples.pattern.stride_x,
+        "stride_y": samples.pattern.stride_y,
+        "method": result.method, "min_disp": int(job.min_disp), "max_disp": int(job.max_disp),
+        "disparity_range": ([float(disparity[valid].min()), float(disparity[valid].max())]
+                            if valid.any() else None),
+        "valid_fraction": float(valid.mean()),
+        "timings": {k: round(float(v), 4) for k, v in timings.items()},
+        "outputs": {k: ("<stdout>" if v == STDIO else v) for k, v in outputs.items()},
+    }
+    decoder_summary = result.summary() if hasattr(result, "summary") else {}
+    for key, value in decoder_summary.items():
+        if key not in summary and key not in ("timings",):
+            summary[key] = value
+    for key, value in extras.items():
+        summary.setdefault(key, value)
+    return summary
+
+
+def decode_job(job: DecodeJob) -> dict:
+    """Do one :class:`DecodeJob`; never raises for bad input (see :func:`encode_job`)."""
+    start = time.perf_counter()
+    base = {"left": display_name(job.left) if job.left else None,
+            "samples": display_name(job.samples) if job.samples else None,
+            "outputs": job.outputs}
+    _in_job(True)
+    try:
+        if (job.batch and not job.overwrite and not job.problem
+                and outputs_up_to_date(job.outputs.values(), [job.left, job.samples])):
+            return {"status": "skipped", **base,
+                    "timings": {"total": round(time.perf_counter() - start, 4)}}
+        return decode_file(job)
+    except Exception as exc:  # noqa: BLE001 -- one bad file must not stop a batch
+        if not isinstance(exc, (StereoBudgetError, MemoryError)):
+            log.debug("unexpected error on %s", job.label, exc_info=True)
+        return {"status": "failed", **base, **_failure(exc),
+                "timings": {"total": round(time.perf_counter() - start, 4)}}
+    finally:
+        _in_job(False)
+
+
+# =====================================================================================
+# Runners
+# =====================================================================================
+
+_job_running = False
+_terminating = False
+
+
+def _in_job(flag: bool) -> None:
+    global _job_running
+    if flag and _terminating:
+        # SIGTERM already asked this worker to stop: do not start another file.
+        os._exit(143)
+    _job_running = flag
+
+
+def _worker_sigterm(signum, frame):
+    # Inside a job: unwind so atomic writers delete their temporary files.  Idle: just go.
+    global _terminating
+    _terminating = True
+    if _job_running:
+        raise KeyboardInterrupt
+    os._exit(128 + signum)
+
+
+def _worker_init(threads: int | None) -> None:
+    """Process-pool initializer: Ctrl-C is the parent's business, SIGTERM cleans up."""
+    global _worker_threads
+    _worker_threads = threads
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    signal.signal(signal.SIGTERM, _worker_sigterm)
+    redeliver_swallowed_interrupts(signal.SIGTERM)
+
+
+def default_jobs() -> int:
+    """Number of usable cores (the default of ``-j``)."""
+    try:
+        return max(1, len(os.sched_getaffinity(0)))
+    except (AttributeError, OSError):
+        return max(1, os.cpu_count() or 1)
+
+
+def _crashed(job, exc: BaseException) -> dict:
+    label = getattr(job, "label", str(job))
+    return {"status": "failed", "input": label, "error": f"{label}: worker failed: {type(exc).__name__}: {exc}",
+            "error_class": type(exc).__name__, "exit_code": 1}
+
+
+def _run_local_pool(jobs: list, fn: Callable, workers: int, threads: int | None) -> Iterator[dict]:
+    import multiprocessing
+    from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
+
+    # Forking a process whose numba thread pool is running can deadlock the child; a
+    # fresh interpreter is safe.  The CLI never decodes in the parent, so it forks.
+    context = multiprocessing.get_context("forkserver" if "numba" in sys.modules else None)
+    executor = ProcessPoolExecutor(max_workers=workers, mp_context=context,
+                                   initializer=_worker_init, initargs=(threads,))
+    pending = {}
+    clean_exit = False
+    try:
+        queue = iter(jobs)
+        # Submit a bounded window so an interrupt does not leave thousands of futures.
+        for job in queue:
+            pending[executor.submit(fn, job)] = job
+            if len(pending) >= 2 * workers:
+                break
+        while pending:
+            done, _ = wait(pending, return_when=FIRST_COMPLETED)
+            for future in done:
+                job = pending.pop(future)
+                try:
+                    yield future.result()
+                except Exception as exc:  # noqa: BLE001 -- a dead worker fails its file only
+                    yield _crashed(job, exc)
+                nxt = next(queue, None)
+                if nxt is not None:
+                    pending[executor.submit(fn, nxt)] = nxt
+        clean_exit = True
+    finally:
+        if clean_exit:
+            executor.shutdown(wait=True)
+        else:
+            # Interrupted (Ctrl-C, SIGTERM, closed pipe): stop queued work, ask running
+            # workers to unwind (they delete their temporary files), then wait for them.
+            for future in pending:
+                future.cancel()
+            for process in list(getattr(executor, "_processes", {}).values()):
+                try:
+                    process.terminate()
+                except Exception:  # noqa: BLE001
+                    pass
+            executor.shutdown(wait=True, cancel_futures=True)
+
+
+def _dask_client(scheduler, workers: int, threads: int | None):
+    """(client, cluster) for ``scheduler``: ``"local"``, an address, or a Client."""
+    try:
+        from distributed import Client, LocalCluster
+    except ImportError:
+        raise OptionError("--scheduler needs dask.distributed; install it with "
+                          "pip install 'stereobudget[dask]'") from None
+    if not isinstance(scheduler, str):
+        return scheduler, None, False
+    if scheduler == "local":
+        # Shutdown races (a worker's last heartbeat to a closed scheduler) are logged by
+        # dask as tracebacks; our results come back as dicts, so keep its logs quiet
+        # unless debugging.
+        quiet = logging.DEBUG if log.getEffectiveLevel() <= logging.DEBUG else logging.CRITICAL
+        cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True,
+                               dashboard_address=None, silence_logs=quiet)
+        return Client(cluster), cluster, True
+    try:
+        return Client(scheduler, timeout="20s"), None, True
+    except (OSError, TimeoutError) as exc:
+        raise OptionError(f"cannot connect to the dask scheduler {scheduler!r}: {exc}") from None
+
+
+def _run_dask(jobs: list, fn: Callable, scheduler, workers: int, threads: int | None) -> Iterator[dict]:
+    client, cluster, owned = _dask_client(scheduler, workers, threads)
+    futures = []
+    try:
+        from distributed import as_completed
+        if threads:
+            jobs = [_with_threads(job, threads) for job in jobs]
+        # pure=False: every job must run even when two are equal (they write files).
+        futures = client.map(fn, jobs, pure=False)
+        index = {future.key: job for future, job in zip(futures, jobs)}
+        for future in as_completed(futures):
+            try:
+                yield future.result()
+            except Exception as exc:  # noqa: BLE001 -- a lost worker fails its file only
+                yield _crashed(index.get(future.key), exc)
+        if cluster is None:
+            _release_worker_volumes(client)
+    finally:
+        for future in futures:
+            if not future.done():
+                future.cancel()
+        if owned:
+            client.close()
+        if cluster is not None:
+            cluster.close()
+
+
+def _release_worker_volumes(client) -> None:
+    """Drop the spare volumes the jobs left on the workers of a cluster that outlives the batch.
+
+    Each worker keeps its last decode's volumes for the next one of the same frame size
+    (:mod:`stereobudget._kernels._scratch`), GiBs at large frames; once the batch is done they are
+    memory the cluster's other work cannot have.  Best effort: a worker that is gone is
+    skipped.
+    """
+    from .._kernels._scratch import release
+    try:
+        client.run(release, on_error="ignore")
+    except Exception as exc:  # noqa: BLE001 -- a closed client or an older distributed
+        log.debug("could not release the workers' spare volumes: %s", exc)
+
+
+def _with_threads(job, threads: int):
+    if isinstance(job, DecodeJob) and job.threads is None:
+        from dataclasses import replace
+        return replace(job, threads=threads)
+    return job
+
+
+def run_jobs(jobs: Iterable, fn: Callable, *, workers: int | None = None, scheduler=None,
+             progress: Callable[[dict], None] | None = None) -> Iterator[dict]:
+    """Run ``fn(job)`` for every job and yield the result dicts as they complete.
+
+    Parameters
+    ----------
+    jobs : iterable
+        Picklable job descriptions (:class:`EncodeJob`, :class:`DecodeJob`).
+    fn : callable
+        A module-level function returning a small dict and never raising for bad
+        input (:func:`encode_job`, :func:`decode_job`).
+    workers : int, optional
+        Parallel workers (default :func:`default_jobs`).  With 1 (or one job) the work
+        runs in this process; otherwise in a local process pool, each worker's numba
+        limited to its share of the cores.
+    scheduler : str or distributed.Client, optional
+        Run on dask.distributed instead: ``"local"`` starts a LocalCluster of
+        ``workers`` single-threaded worker processes; any other string is a scheduler
+        address (``tcp://host:8786``); a Client is used as it is.  Workers read and write
+        the files themselves (shared storage) and send back only the result dicts.
+    progress : callable, optional
+        Called with each result dict as it arrives.
+
+    Yields
+    ------
+    dict
+        One per job, in completion order.  Closing the generator early (or an interrupt)
+        cancels the queued jobs and stops the workers, which remove their temporary files.
+    """
+    jobs = list(jobs)
+    workers = max(1, int(workers or default_jobs()))
+    # Jobs on one machine share its cores: each worker's numba gets its share.
+    threads = max(1, default_jobs() // workers)
+
+    def report(results):
+        for item in results:
+            if progress is not None:
+                progress(item)
+            yield item
+
+    if scheduler is not None:
+        yield from report(_run_dask(jobs, fn, scheduler, workers,
+                                    threads if scheduler == "local" else None))
+    elif workers == 1 or len(jobs) <= 1:
+        yield from report(fn(job) for job in jobs)
+    else:
+        yield from report(_run_local_pool(jobs, fn, min(workers, len(jobs)), threads))
+
+
+def count_statuses(results: Iterable[dict]) -> dict:
+    """``{"ok": n, "skipped": n, "failed": n}`` of a list of result dicts."""
+    counts = {"ok": 0, "skipped": 0, "failed": 0}
+    for item in results:
+        counts[item.get("status", "failed")] = counts.get(item.get("status", "failed"), 0) + 1
+    return counts
+
+
+__all__ = ["IMAGE_EXTENSIONS", "SAMPLE_EXTENSIONS", "TEMPLATE_FIELDS", "expand_inputs", "has_template",
+           "template_fields", "expand_template", "output_for", "check_distinct_outputs", "Pair",
+           "pair_by_stem", "read_manifest", "outputs_up_to_date", "EncodeJob", "encode_job",
+           "DecodeJob", "decode_file", "decode_job", "recover_right_image", "run_jobs", "default_jobs",
+           "count_statuses"]

@@ -1,0 +1,161 @@
+"""``sb-decode``: the host's job -- left image + sample file -> disparity map (+ right image).
+
+A thin layer over :mod:`stereobudget.batch` (:func:`~stereobudget.batch.decode_file` for
+one pair, :func:`~stereobudget.batch.decode_job` and :func:`~stereobudget.batch.run_jobs`
+for many).  One pair keeps the error's own exit code; a batch (several pairs, or output
+templates) reports each failed pair and exits 1 if any failed.
+"""
+
+from __future__ import annotations
+
+import logging
+
+import click
+
+from stereobudget.errors import OptionError
+from stereobudget.decoding import DEFAULT_METHOD, METHODS
+
+from . import _batch
+from . import _common as common
+
+log = logging.getLogger("stereobudget")
+
+_OUTPUT_OPTIONS = (("disparity", "--disparity"), ("preview", "--preview"), ("right", "--right"))
+
+
+def _pairs_from_arguments(inputs, left_dir, samples_dir, manifest):
+    """The (left, samples) pairs and whether they came from a multi-file source."""
+    from stereobudget.batch._batch import (IMAGE_EXTENSIONS, SAMPLE_EXTENSIONS, Pair, expand_inputs,
+                                    pair_by_stem, read_manifest)
+
+    sources = sum(x for x in (bool(inputs), left_dir is not None or samples_dir is not None,
+                              manifest is not None))
+    if sources > 1:
+        raise OptionError("give LEFT SAMPLES, or --left-dir/--samples-dir, or --manifest; not several")
+    if manifest is not None:
+        return read_manifest(manifest)
+    if left_dir is not None or samples_dir is not None:
+        if left_dir is None or samples_dir is None:
+            raise OptionError("--left-dir and --samples-dir go together")
+        left_args, sample_args = [left_dir], [samples_dir]
+    else:
+        if len(inputs) != 2:
+            raise OptionError(f"expected LEFT and SAMPLES (got {len(inputs)} argument(s)); for many "
+                              "pairs use folders, quoted globs, or --manifest; see --help")
+        left_args, sample_args = [inputs[0]], [inputs[1]]
+    lefts = expand_inputs(left_args, extensions=IMAGE_EXTENSIONS, what="image")
+    samples = expand_inputs(sample_args, extensions=SAMPLE_EXTENSIONS, what="sample file (.sbs)")
+    if len(lefts) == 1 and len(samples) == 1:
+        # One explicit pair: no stem matching (left.png + right.sbs is fine).
+        from pathlib import Path
+        return [Pair(stem=Path(lefts[0]).stem, left=lefts[0], samples=samples[0])]
+    if "-" in lefts or "-" in samples:
+        raise OptionError("'-' (standard input) works with a single pair only")
+    return pair_by_stem(lefts, samples)
+
+
+@click.command(context_settings={"help_option_names": ["-h", "--help"]})
+@click.argument("inputs", nargs=-1, metavar="LEFT SAMPLES")
+@click.option("--left-dir", metavar="DIR", default=None,
+              help="Folder (or quoted glob) of left images, paired by stem with --samples-dir.")
+@click.option("--samples-dir", metavar="DIR", default=None,
+              help="Folder (or quoted glob) of .sbs sample files.")
+@click.option("--manifest", metavar="PAIRS.csv", default=None,
+              help="CSV of pairs: left,samples[,max_disp[,min_disp]] (paths relative to the CSV).")
+@click.option("--max-disp", type=click.IntRange(1, 65535), default=None,
+              help="Largest disparity searched, in pixels (required unless the manifest has it).")
+@click.option("--min-disp", type=int, default=0, show_default=True, help="Smallest disparity searched.")
+@click.option("--method", type=click.Choice(METHODS), default=None,
+              help=f"Decoder.  [default: {DEFAULT_METHOD}]")
+@click.option("--disparity", metavar="OUT", default=None,
+              help="Disparity map: .pfm, .tif/.tiff (float32), .png (16-bit x256) or .npy.")
+@click.option("--preview", metavar="OUT.png", default=None, help="Colour preview of the disparity (PNG).")
+@click.option("--right", metavar="OUT", default=None,
+              help="Recovered right image (PNG/TIFF, the input's channels and bit depth; '-' = stdout).")
+@click.option("--max-memory", metavar="SIZE", default=None,
+              help="Refuse a pair whose decode would need more memory than SIZE (e.g. 8G, 500M).  "
+                   "[default: 75 % of the available memory, or $STEREOBUDGET_MAX_MEMORY]")
+@_batch.jobs_options
+@common.overwrite_option
+@common.json_option
+@common.verbosity_options
+@common.version_option
+@common.handle_errors
+def decode_command(inputs, left_dir, samples_dir, manifest, max_disp, min_disp, method, disparity,
+                   preview, right, max_memory, jobs, scheduler, overwrite, as_json):
+    """Recover the disparity of LEFT from the right camera's SAMPLES (.sbs).
+
+    One of LEFT and SAMPLES may be '-' (standard input).  LEFT and SAMPLES may also be
+    folders or quoted globs: pairs are matched by file stem and every output must then
+    be a template using {stem}, {name} or {parent} (of the left image).
+
+    In a batch an existing output newer than its inputs is skipped (a rerun resumes),
+    a stale one is redone; --overwrite redoes everything.  Exit status 1 if any pair
+    failed.
+
+    \b
+    Examples:
+      sb-decode left.png right.sbs --max-disp 60 --disparity d.pfm --preview d.png
+      sb-decode left.png right.sbs --max-disp 60 --disparity d.tif --right r.png --json
+      ssh cam sb-encode - -o - < r.png | sb-decode left.png - --max-disp 60 --disparity d.pfm
+      sb-decode --left-dir L --samples-dir S --max-disp 60 \\
+          --disparity 'D/{stem}.pfm' --right 'R/{stem}.png' -j 2
+      sb-decode --manifest pairs.csv --max-disp 60 --disparity 'D/{stem}.pfm' --scheduler local
+    """
+    from stereobudget.batch import DecodeJob, check_distinct_outputs, decode_file, decode_job, has_template
+
+    if max_memory is not None:
+        from stereobudget.io import parse_size
+        try:
+            max_memory = parse_size(max_memory)
+        except ValueError as exc:
+            raise OptionError(f"--max-memory: {exc}") from None
+    templates = {name: value for name, value in (("disparity", disparity), ("preview", preview),
+                                                  ("right", right)) if value is not None}
+    if not templates:
+        raise OptionError("nothing to write: give --disparity, --preview and/or --right")
+    templated = {name: has_template(value, f"--{name}") for name, value in templates.items()}
+    pairs = _pairs_from_arguments(inputs, left_dir, samples_dir, manifest)
+    batch = len(pairs) > 1 or any(templated.values())
+    if batch:
+        plain = [f"--{name}" for name, is_template in templated.items() if not is_template]
+        if len(pairs) > 1 and plain:
+            raise OptionError(f"{len(pairs)} pairs but {', '.join(plain)} has no template; use e.g. "
+                              f"'out/{{stem}}.pfm' ({{stem}}, {{name}}, {{parent}} of the left image)")
+        if "-" in templates.values():
+            raise OptionError("'-' (standard output) works with a single pair only")
+    if as_json and "-" in templates.values():
+        raise OptionError("--json cannot be combined with an output on '-' (stdout carries the image)")
+    if scheduler is not None and not batch:
+        log.info("--scheduler ignored for a single pair")
+
+    from stereobudget.batch import expand_template
+    job_list = []
+    for pair in pairs:
+        source = pair.template_source
+        outputs = {name: (expand_template(value, source, option=f"--{name}") if templated[name] else value)
+                   for name, value in templates.items()}
+        pair_max = pair.max_disp if pair.max_disp is not None else max_disp
+        job_list.append(DecodeJob(
+            left=pair.left, samples=pair.samples, max_disp=pair_max,
+            min_disp=pair.min_disp if pair.min_disp is not None else min_disp, method=method,
+            overwrite=overwrite, batch=batch, problem=pair.problem, max_memory=max_memory, **outputs))
+    if all(job.max_disp is None for job in job_list):
+        raise OptionError("missing --max-disp (the largest disparity to search, in pixels)")
+
+    if not batch:
+        summary = decode_file(job_list[0])
+        log.info("%s + %s -> %s: %dx%d, epsilon %.2f %%, %s, %.2f s", summary["left"], summary["samples"],
+                 ", ".join(summary["outputs"].values()), summary["width"], summary["height"],
+                 100 * summary["epsilon"], summary["method"], summary["timings"]["total"])
+        if as_json:
+            common.emit_json(summary)
+        return
+    check_distinct_outputs(job_list, key=lambda job: job.outputs.values())
+    _batch.run_batch(job_list, decode_job, workers=jobs, scheduler=scheduler, as_json=as_json)
+
+
+main = common.make_main(decode_command, "sb-decode")
+
+if __name__ == "__main__":   # python -m stereobudget.cli.decode
+    main()

@@ -1,0 +1,160 @@
+"""``sb-encode``: the right camera's job -- keep a sparse set of pixels, write a ``.sbs`` file.
+
+The command is a thin layer over :func:`stereobudget.io.encode_file`.  It must
+start fast on the camera: nothing here (nor in what ``--raw`` reaches) imports numba or
+OpenCV; OpenCV is loaded only when an encoded image (PNG, JPEG...) has to be decoded.
+A raw frame on the default ``grid`` pattern, and ``--info``, do not import numpy either
+(:mod:`stereobudget.io._rawgrid`): its import was most of the process's run time.
+"""
+
+from __future__ import annotations
+
+import logging
+
+import click
+
+from stereobudget.errors import OptionError
+
+from . import _batch
+from . import _common as common
+
+log = logging.getLogger("stereobudget")
+
+_RAW_PIX_FMTS = ("gray8", "rgb24", "bgr24", "gray16le")   # = imageio.RAW_PIXEL_FORMATS
+_U16 = click.IntRange(1, 65535)
+
+
+def _parse_offset(text: str) -> tuple[int, int]:
+    parts = text.replace(" ", "").split(",")
+    if len(parts) != 2 or not all(p.isdigit() for p in parts):
+        raise OptionError(f"--offset must look like X,Y (two non-negative integers), got {text!r}")
+    return int(parts[0]), int(parts[1])
+
+
+def build_pattern(*, pattern: str, stride: int, stride_x: int | None, stride_y: int | None,
+                  offset: str | None, seed: int | None):
+    """The :class:`~stereobudget.sampling.SamplingPattern` described by sb-encode's options.
+
+    Raises
+    ------
+    OptionError
+        Offset outside the stride, an offset with any pattern but ``grid``, a seed with
+        ``grid`` or ``downsample``.
+    """
+    from stereobudget.sampling import SamplingPattern
+
+    sx = stride if stride_x is None else stride_x
+    sy = stride if stride_y is None else stride_y
+    ox, oy = _parse_offset(offset) if offset is not None else (0, 0)
+    if pattern != "grid" and offset is not None:
+        raise OptionError(f"--offset applies to --pattern grid only, not {pattern}")
+    if pattern in ("grid", "downsample") and seed is not None:
+        raise OptionError("--seed applies to --pattern fps, adaptive_fps or jitter only")
+    if not (ox < sx and oy < sy):
+        raise OptionError(f"--offset {ox},{oy} must be smaller than the stride {sx}x{sy}")
+    return SamplingPattern(kind=pattern, stride_x=sx, stride_y=sy, offset_x=ox, offset_y=oy,
+                           seed=seed or 0)
+
+
+def _show_info(path, *, verify: bool) -> None:
+    from stereobudget.io import probe
+    common.emit_json(probe(path, verify_payload=verify))
+
+
+@click.command(context_settings={"help_option_names": ["-h", "--help"]})
+@click.argument("images", nargs=-1, metavar="RIGHT_IMAGE...")
+@click.option("-o", "--output", metavar="OUT.sbs",
+              help="Sample file to write ('-' = stdout); with several inputs a template such as "
+                   "'out/{stem}.sbs' ({stem}, {name}, {parent} of each input).")
+@click.option("--stride", type=_U16, default=5, show_default=True,
+              help="Grid spacing in pixels, both directions (epsilon ~ 1/stride^2).")
+@click.option("--stride-x", type=_U16, default=None, help="Horizontal spacing (overrides --stride).")
+@click.option("--stride-y", type=_U16, default=None, help="Vertical spacing (overrides --stride).")
+@click.option("--offset", metavar="X,Y", default=None,
+              help="Position of the first grid sample, 0 <= offset < stride.  [default: 0,0]")
+@click.option("--pattern", type=click.Choice(["grid", "jitter", "fps", "adaptive_fps", "downsample"]),
+              default="grid", show_default=True,
+              help="grid: I2[oy::sy, ox::sx]; jitter: one pseudo-random pixel per cell; fps / "
+                   "adaptive_fps: farthest point sampling with the grid's budget; downsample: "
+                   "block means (see docs/format.md).")
+@click.option("--seed", type=click.IntRange(0, 2 ** 64 - 1), default=None,
+              help="Seed of the jitter/fps/adaptive_fps pattern (0..2^64-1).  [default: 0]")
+@click.option("--raw", "raw_size", metavar="WxH", default=None,
+              help="Input is one headerless frame of this size (needs --pix-fmt).")
+@click.option("--pix-fmt", type=click.Choice(_RAW_PIX_FMTS), default=None,
+              help="Pixel format of a --raw frame.")
+@click.option("--info", "info_file", metavar="FILE.sbs", default=None,
+              help="Validate a sample file and print its header as one JSON line; no encoding.")
+@click.option("--header-only", is_flag=True,
+              help="With --info: check the header and file size but not the payload checksum.")
+@_batch.jobs_options
+@common.overwrite_option
+@common.json_option
+@common.verbosity_options
+@common.version_option
+@common.handle_errors
+def encode_command(images, output, stride, stride_x, stride_y, offset, pattern, seed, raw_size,
+                   pix_fmt, info_file, header_only, jobs, scheduler, overwrite, as_json):
+    """Sample RIGHT_IMAGE ('-' = stdin) on a sparse grid and write the .sbs sample file.
+
+    \b
+    Examples:
+      sb-encode right.png -o right.sbs                 # 5x5 grid, epsilon = 4 %
+      sb-encode right.png -o right.sbs --stride 4      # epsilon = 6.25 %
+      sb-encode - -o - < right.png > right.sbs         # stdin to stdout
+      sb-encode frame.raw --raw 640x480 --pix-fmt bgr24 -o frame.sbs
+      sb-encode --info right.sbs                       # header as JSON
+      sb-encode 'cam_r/*.png' -o 'out/{stem}.sbs' -j 2 # many files (quoted glob)
+
+    With several inputs (files, folders, quoted globs) or a templated -o, an output
+    newer than its input is skipped (a rerun resumes), a stale one is redone;
+    --overwrite redoes all.  Exit status 1 if any file failed.
+    """
+    if info_file is not None:
+        if images or output is not None:
+            raise OptionError("--info takes only the sample file; drop RIGHT_IMAGE and -o")
+        _show_info(info_file, verify=not header_only)
+        return
+    if header_only:
+        raise OptionError("--header-only only applies to --info")
+    if not images:
+        raise OptionError("missing RIGHT_IMAGE (use '-' for standard input); see --help")
+    if output is None:
+        raise OptionError("missing -o/--output (use '-o -' for standard output)")
+    if (raw_size is None) != (pix_fmt is None):
+        raise OptionError("--raw WxH and --pix-fmt must be given together")
+    if as_json and output == "-":
+        raise OptionError("--json cannot be combined with '-o -' (stdout carries the sample file)")
+    size = None
+    if raw_size is not None:
+        from stereobudget.io import parse_raw_size
+        try:
+            size = parse_raw_size(raw_size)
+        except ValueError as exc:
+            raise OptionError(f"--raw: {exc}") from None
+    sampling = build_pattern(pattern=pattern, stride=stride, stride_x=stride_x, stride_y=stride_y,
+                             offset=offset, seed=seed)
+
+    image, batch_jobs = _batch.plan_encode(images, output, pattern=sampling, raw_size=size, pix_fmt=pix_fmt,
+                                           overwrite=overwrite)
+    if batch_jobs is not None:
+        from stereobudget.batch import encode_job
+        _batch.run_batch(batch_jobs, encode_job, workers=jobs, scheduler=scheduler, as_json=as_json)
+        return
+
+    from stereobudget.io import encode_file
+    report = encode_file(image, output, pattern=sampling, raw_size=size, pix_fmt=pix_fmt,
+                         overwrite=overwrite)
+    log.info("%s -> %s: %dx%d %s %s, %s %dx%d, %d samples, epsilon %.2f %%, %d bytes "
+             "(header %d + payload %d)", report.source, report.output, report.width, report.height,
+             report.channel_order, report.dtype, report.pattern, report.stride_x, report.stride_y,
+             report.sample_count, 100 * report.epsilon, report.file_size, report.header_bytes,
+             report.payload_bytes)
+    if as_json:
+        common.emit_json(report.as_dict())
+
+
+main = common.make_main(encode_command, "sb-encode")
+
+if __name__ == "__main__":   # python -m stereobudget.cli.encode
+    main()

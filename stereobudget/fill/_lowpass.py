@@ -1,0 +1,279 @@
+"""Low-passed views of the pair: what the Hybrid and Downsample decoders match densely.
+
+Hybrid matches a low-passed I1 against a low-passed interpolation of the samples
+(:func:`lowpass_interpolation`, :func:`gaussian_lowpass`: the same Gaussian spectrum on
+both sides); Downsample matches the upsampled block means against I1 passed through the
+same box-and-triangle operator (:func:`block_lowpass`, :func:`upsample_block_means`).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import get_num_threads, njit, prange
+
+from ..cost._cost import to_float_image
+from ..sampling._patterns import grid_shape
+
+
+def _sample_values_f32(samples) -> np.ndarray:
+    """Sample values as float32 (n, C) RGB in 8-bit units."""
+    return to_float_image(samples.values_rgb()[:, None, :])[:, 0, :]
+
+
+def gaussian_taps(sigma: float) -> np.ndarray:
+    """The float32 Gaussian kernel ``cv2.GaussianBlur`` uses for a float image and this sigma.
+
+    OpenCV takes ``round(8 sigma + 1) | 1`` taps (radius ~4 sigma) and normalises them to
+    sum 1; the lattice path of :func:`lowpass_interpolation` uses the same taps, so both
+    paths compute the same convolution.
+    """
+    import cv2
+    size = int(round(sigma * 8 + 1)) | 1
+    return cv2.getGaussianKernel(size, sigma, cv2.CV_32F).ravel().astype(np.float32)
+
+
+@njit(cache=True, inline="always")
+def _first_last_sample(position, radius, offset, stride, count):
+    """Indices ``[first, last]`` of the lattice samples within ``radius`` of ``position`` (empty: first > last)."""
+    first = max(0, -(-(position - radius - offset) // stride))
+    last = min(count - 1, (position + radius - offset) // stride)
+    return first, last
+
+
+@njit(cache=True, parallel=True)
+def _lattice_lowpass(lattice, offset_y, stride_y, offset_x, stride_x, taps, threshold, out):
+    """Normalised Gaussian convolution of the impulses of a sample lattice, separably.
+
+    ``lattice`` (rows, cols, C) float32 holds the samples of ``[oy::sy, ox::sx]``; ``out``
+    (H, W, C) float32 receives the blurred impulses divided by the blurred mask.  The
+    mask's blur is ``wy(y) * wx(x)`` (the lattice is a product of two 1-D combs), so only
+    the values need the 2-D pass: x along the lattice rows, then y onto every image row.
+    """
+    rows, cols, channels = lattice.shape
+    height, width = out.shape[0], out.shape[1]
+    radius = taps.shape[0] // 2
+    weight_x = np.zeros(width, np.float32)
+    for x in range(width):
+        first, last = _first_last_sample(x, radius, offset_x, stride_x, cols)
+        for j in range(first, last + 1):
+            weight_x[x] += taps[offset_x + j * stride_x - x + radius]
+    # The x pass: only the lattice rows carry impulses (1 / stride_y of the image rows).
+    along_x = np.zeros((rows, width * channels), np.float32)
+    for r in prange(rows):
+        row = along_x[r]
+        for x in range(width):
+            first, last = _first_last_sample(x, radius, offset_x, stride_x, cols)
+            for j in range(first, last + 1):
+                tap = taps[offset_x + j * stride_x - x + radius]
+                for c in range(channels):
+                    row[x * channels + c] += tap * lattice[r, j, c]
+    for y in prange(height):
+        row = out[y].reshape(width * channels)
+        row[:] = 0
+        first, last = _first_last_sample(y, radius, offset_y, stride_y, rows)
+        weight_y = np.float32(0.0)
+        for k in range(first, last + 1):
+            tap = taps[offset_y + k * stride_y - y + radius]
+            weight_y += tap
+            source = along_x[k]
+            for i in range(width * channels):
+                row[i] += tap * source[i]
+        for x in range(width):
+            weight = weight_y * weight_x[x]
+            # Unreached pixels (no sample within the kernel) get 0, like the general path.
+            scale = np.float32(1.0) / weight if weight > threshold else np.float32(0.0)
+            for c in range(channels):
+                row[x * channels + c] *= scale
+    return out
+
+
+def lowpass_interpolation(samples, *, sigma: float) -> np.ndarray:
+    """Dense low-passed estimate of I2 from its samples: a normalised Gaussian convolution.
+
+    The samples (as impulses) and their mask are blurred with the same Gaussian and
+    divided, so interpolation and low-pass are one operation, for any sampling pattern.
+    Pixels with no sample within the kernel's reach (4 sigma) get 0.  A regular grid is
+    blurred separably on its lattice (~8x faster than blurring the impulse image; the
+    same taps, sums in another order).
+
+    Parameters
+    ----------
+    samples : stereobudget.io.SampleSet
+    sigma : float
+        Standard deviation of the Gaussian, pixels.
+
+    Returns
+    -------
+    ndarray, float32 (H, W, C), 8-bit units
+    """
+    import cv2
+    values = _sample_values_f32(samples)
+    height, width = samples.height, samples.width
+    channels = values.shape[1]
+    sample_count = values.shape[0]
+    # The kernel sums to 1, so the mask's blur is ~ the sample density where samples are.
+    threshold = np.float32(1e-4 * sample_count / float(height * width))
+    pattern = samples.pattern
+    if pattern.is_regular_grid and sample_count:
+        lattice = values.reshape(grid_shape(pattern, height, width) + (channels,))
+        out = np.empty((height, width, channels), np.float32)
+        return _lattice_lowpass(lattice, int(pattern.offset_y), int(pattern.stride_y), int(pattern.offset_x),
+                                int(pattern.stride_x), gaussian_taps(sigma), threshold, out)
+    rows, cols = samples.positions()
+    # Channels and mask blurred together: one pass over one interleaved image.
+    impulses = np.zeros((height, width, channels + 1), np.float32)
+    impulses[rows, cols, :channels] = values
+    impulses[rows, cols, channels] = 1.0
+    # Zero outside the frame for the values and the mask alike: the border stays unbiased.
+    blurred = cv2.GaussianBlur(impulses, (0, 0), sigmaX=sigma, sigmaY=sigma, borderType=cv2.BORDER_CONSTANT)
+    blurred = blurred.reshape(impulses.shape)
+    weight = blurred[..., channels]
+    reached = weight > threshold
+    # Unreached pixels divide by infinity (-> 0): one plain division, 2x faster than a masked one.
+    return blurred[..., :channels] / np.where(reached, weight, np.float32(np.inf))[..., None]
+
+
+@njit(cache=True)
+def _reflected(position, length):
+    """The index ``cv2.BORDER_REFLECT`` (``fedcba|abcdef|fedcba``) reads for ``position``."""
+    if length == 1:
+        return 0
+    while position < 0 or position >= length:
+        position = -position - 1 if position < 0 else 2 * length - 1 - position
+    return position
+
+
+@njit(cache=True)
+def _symmetric_taps(row, flat, starts, taps):
+    """``row = sum_j taps[j] * flat[starts[j]:starts[j] + len(row)]`` for a symmetric
+    kernel, as ``taps[r] * centre + sum_t taps[r + t] * (after_t + before_t)``.
+
+    Two pairs of taps per sweep over ``row``: a sweep reads ``row`` and four runs, and
+    LLVM vectorises it (with more runs its alias checks give up on vectors).
+    """
+    radius = taps.shape[0] // 2
+    n = row.shape[0]
+    centre = flat[starts[radius]:starts[radius] + n]
+    k0 = taps[radius]
+    t = 1
+    if radius % 2 == 1:
+        a, b, k1 = flat[starts[radius + 1]:], flat[starts[radius - 1]:], taps[radius + 1]
+        for i in range(n):
+            row[i] = k0 * centre[i] + k1 * (a[i] + b[i])
+        t = 2
+    else:
+        for i in range(n):
+            row[i] = k0 * centre[i]
+    while t < radius:
+        a1, b1, k1 = flat[starts[radius + t]:], flat[starts[radius - t]:], taps[radius + t]
+        a2, b2, k2 = flat[starts[radius + t + 1]:], flat[starts[radius - t - 1]:], taps[radius + t + 1]
+        for i in range(n):
+            row[i] += k1 * (a1[i] + b1[i]) + k2 * (a2[i] + b2[i])
+        t += 2
+
+
+@njit(cache=True)
+def _row_along_x(source, radius, channels, padded, starts, taps, row):
+    """One image row (``W * C`` floats) convolved along x into ``row``, borders reflected."""
+    n = source.shape[0]
+    width = n // channels
+    padded[radius * channels:radius * channels + n] = source
+    for x in range(radius):
+        before, after = _reflected(-1 - x, width), _reflected(width + x, width)
+        for c in range(channels):
+            padded[(radius - 1 - x) * channels + c] = source[before * channels + c]
+            padded[(radius + width + x) * channels + c] = source[after * channels + c]
+    _symmetric_taps(row, padded, starts, taps)
+
+
+@njit(cache=True, parallel=True)
+def _separable_gaussian(image, taps, out, bands):
+    """``out`` = ``image`` (H, W, C) float32 convolved with the symmetric ``taps`` along x,
+    then along y, borders reflected.
+
+    The rows are cut into ``bands``, one work item each; a band convolves its image rows
+    (and ``radius`` more on either side) along x into a ring of ``2 radius + 1`` rows,
+    from which each of its output rows is summed along y while the ring is in cache
+    (through a whole intermediate image a 12 MP frame took 100 ms, here 69).
+    """
+    height, width, channels = image.shape
+    radius = taps.shape[0] // 2
+    n = width * channels
+    rows = image.reshape(height, n)
+    ring_rows = min(height, 2 * radius + 1)
+    for band in prange(bands):
+        first, stop = band * height // bands, (band + 1) * height // bands
+        ring = np.empty(ring_rows * n, np.float32)
+        padded = np.empty(n + 2 * radius * channels, np.float32)
+        x_starts = np.arange(taps.shape[0]) * channels
+        y_starts = np.empty(taps.shape[0], np.int64)
+        ready = max(0, first - radius)  # the next image row to bring into the ring
+        for y in range(first, stop):
+            while ready <= min(height - 1, y + radius):
+                slot = ready % ring_rows
+                _row_along_x(rows[ready], radius, channels, padded, x_starts, taps, ring[slot * n:(slot + 1) * n])
+                ready += 1
+            for j in range(taps.shape[0]):
+                y_starts[j] = (_reflected(y - radius + j, height) % ring_rows) * n
+            _symmetric_taps(out[y].reshape(n), ring, y_starts, taps)
+    return out
+
+
+def gaussian_lowpass(image_f32: np.ndarray, *, sigma: float) -> np.ndarray:
+    """Gaussian low-pass of a float32 (H, W, C) image, the same spectrum as :func:`lowpass_interpolation`.
+
+    The taps are ``cv2.GaussianBlur``'s (:func:`gaussian_taps`) and the borders are
+    reflected as by its ``BORDER_REFLECT``; the sums agree with OpenCV's to float
+    rounding (1e-4 gray levels), and run on every thread, where OpenCV's filter runs on
+    one: Teddy at sigma 2.5 took 1.10 ms there, 0.74 here on two threads (a 12 MP frame,
+    whose rows leave the cache, 62 ms there and 69 here).
+    """
+    image = np.ascontiguousarray(image_f32, dtype=np.float32)
+    if image.ndim == 2:
+        return gaussian_lowpass(image[:, :, None], sigma=sigma)[:, :, 0]
+    taps = gaussian_taps(sigma)
+    # One band per thread, more (up to 4 per thread) where bands of 32 radii fit: their
+    # margins then cost at most 1/16 more x sums, and uneven threads even out.
+    threads = get_num_threads()
+    bands = min(image.shape[0], max(threads, min(4 * threads, image.shape[0] // (32 * (taps.shape[0] // 2) + 1))))
+    return _separable_gaussian(image, taps, np.empty(image.shape, np.float32), bands)
+
+
+def block_lowpass(image_f32: np.ndarray, sx: int, sy: int) -> np.ndarray:
+    """Give I1 the spectrum of upsampled block means, without their sampling.
+
+    The camera's block means are a box filter followed by subsampling; bilinear upsampling
+    is a triangle filter.  Convolving I1 with the same box and triangle, but never
+    subsampling it, matches the spectra while keeping I1 free of aliasing: re-sampling I1
+    on the camera's block grid would alias differently from I2 at every disparity that is
+    not a multiple of the block size (measured: Downsample at s = 5 falls from 29 % to
+    14 % bad pixels, mean of the four Middlebury scenes).
+    """
+    import cv2
+
+    def kernels(s):
+        # A centred box of width s: for even s, s + 1 taps with half weights at the ends
+        # (a plain even-length box would shift I1 by half a pixel against I2's block centres).
+        box = np.full(s + 1 - s % 2, 1.0 / s, np.float32)
+        if s % 2 == 0:
+            box[0] = box[-1] = 0.5 / s
+        tri = 1.0 - np.abs(np.arange(-s + 1, s, dtype=np.float32)) / s
+        return box, (tri / tri.sum()).astype(np.float32)
+
+    box_x, tri_x = kernels(sx)
+    box_y, tri_y = kernels(sy)
+    out = cv2.sepFilter2D(image_f32, -1, box_x, box_y, borderType=cv2.BORDER_REFLECT)
+    out = cv2.sepFilter2D(out, -1, tri_x, tri_y, borderType=cv2.BORDER_REFLECT)
+    return out.reshape(image_f32.shape)
+
+
+def upsample_block_means(low: np.ndarray, sx: int, sy: int, h: int, w: int) -> np.ndarray:
+    """Bilinear upsampling of (rows, cols, C) block means to a float32 (h, w, C) image, block centres aligned."""
+    import cv2
+    rows, cols = low.shape[:2]
+    ys = (np.arange(h, dtype=np.float32) - (sy - 1) / 2.0) / sy
+    xs = (np.arange(w, dtype=np.float32) - (sx - 1) / 2.0) / sx
+    map_x, map_y = np.meshgrid(xs, ys)
+    out = cv2.remap(np.ascontiguousarray(low, np.float32), map_x, map_y, interpolation=cv2.INTER_LINEAR,
+                    borderMode=cv2.BORDER_REPLICATE)
+    return out.reshape(h, w, low.shape[2])

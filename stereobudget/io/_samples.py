@@ -1,0 +1,659 @@
+"""The sample container: what the right camera sends (in memory: :class:`SampleSet`).
+
+The binary ``.sbs`` encoding of a :class:`SampleSet` is specified in ``docs/format.md``
+and implemented by :func:`write_samples` / :func:`read_samples` / :func:`probe`
+(files: :func:`save_samples` / :func:`load_samples`).  :func:`encode_file` is the whole
+camera-side job for one image: read, sample, write atomically.
+
+numpy is imported inside the functions that need it, never at module level: a raw
+frame on a ``grid`` (``sb-encode --raw``) is encoded by :mod:`stereobudget.io._rawgrid` with
+bytes slicing, and ``probe`` (``sb-encode --info``) checks files without numpy, so the
+camera-side process starts without loading it.
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+import struct
+import zlib
+from dataclasses import dataclass
+from pathlib import Path
+
+from ._atomic import STDIO, check_output_path, display_name, read_input_bytes, write_output_bytes
+from ..errors import (CorruptHeaderError, CorruptPayloadError, ImageReadError, NotASampleFileError, OptionError,
+                     TruncatedFileError, UnsupportedVersionError)
+from ._limits import dimension_problem
+from ..sampling._patterns import SamplingPattern, sample_count, sample_positions, grid_shape
+
+log = logging.getLogger("stereobudget")
+
+CHANNEL_ORDERS = ("gray", "rgb", "bgr")
+
+
+@dataclass(frozen=True, eq=False)
+class SampleSet:
+    """Samples of the right image and everything needed to place them.
+
+    Attributes
+    ----------
+    height, width : int
+        Size of the full right image I2.
+    channel_order : str
+        ``"gray"`` (1 channel), ``"rgb"`` or ``"bgr"`` (3 channels).
+    pattern : SamplingPattern
+        Where the samples lie.
+    values : ndarray, shape (n, channels), uint8 or uint16
+        Sample values in transmission order (see :func:`stereobudget.sampling.sample_positions`).
+    """
+
+    height: int
+    width: int
+    channel_order: str
+    pattern: SamplingPattern
+    values: np.ndarray
+
+    def __post_init__(self):
+        if self.channel_order not in CHANNEL_ORDERS:
+            raise ValueError(f"channel_order must be one of {CHANNEL_ORDERS}, got {self.channel_order!r}")
+        import numpy as np
+
+        v = self.values
+        if v.ndim != 2 or v.shape[1] != self.channels:
+            raise ValueError(f"values must have shape (n, {self.channels}), got {v.shape}")
+        if v.dtype not in (np.uint8, np.uint16):
+            raise ValueError(f"values must be uint8 or uint16, got {v.dtype}")
+        n = sample_count(self.pattern, self.height, self.width)
+        if v.shape[0] != n:
+            raise ValueError(f"pattern {self.pattern.kind} on {self.width}x{self.height} has {n} samples, "
+                             f"values has {v.shape[0]}")
+
+    @property
+    def channels(self) -> int:
+        return 1 if self.channel_order == "gray" else 3
+
+    @property
+    def dtype(self) -> np.dtype:
+        return self.values.dtype
+
+    @property
+    def epsilon(self) -> float:
+        """Fraction of I2's pixels that were sent (n / (H W))."""
+        return self.values.shape[0] / float(self.height * self.width)
+
+    def positions(self):
+        """(rows, cols) of every sample, in transmission order.
+
+        ``adaptive_fps`` positions are regenerated from the values; ``downsample`` gives
+        the centre pixel of each block.
+        """
+        return sample_positions(self.pattern, self.height, self.width, values=self.values)
+
+    def values_rgb(self) -> np.ndarray:
+        """Sample values as (n, channels) with colour in RGB order (gray stays 1 channel)."""
+        return self.values[:, ::-1] if self.channel_order == "bgr" else self.values
+
+    def grid_values(self) -> np.ndarray:
+        """Values of a ``grid`` pattern as a (rows, cols, channels) lattice ``I2[oy::sy, ox::sx]``."""
+        if not self.pattern.is_regular_grid:
+            raise ValueError(f"pattern {self.pattern.kind!r} is not a regular grid")
+        r, c = grid_shape(self.pattern, self.height, self.width)
+        return self.values.reshape(r, c, self.channels)
+
+
+def encode_image(image: np.ndarray, *, pattern: SamplingPattern, channel_order: str | None = None) -> SampleSet:
+    """Select the samples of ``image`` (the camera's only job: no arithmetic on pixel values).
+
+    Parameters
+    ----------
+    image : ndarray, (H, W) or (H, W, C), uint8 or uint16
+        The right image.  C = 1 or 3.
+    pattern : SamplingPattern
+        Where to sample.  ``downsample`` is the one pattern that computes (block means).
+    channel_order : str, optional
+        Channel order of ``image``; default ``"gray"`` for one channel, ``"rgb"`` for three.
+    """
+    import numpy as np
+
+    img = image if image.ndim == 3 else image[:, :, None]
+    h, w, c = img.shape
+    if channel_order is None:
+        channel_order = "gray" if c == 1 else "rgb"
+    if pattern.kind == "downsample":
+        from ..sampling._patterns import downsample_blocks  # computes block means, camera side
+        values = downsample_blocks(img, pattern)
+    elif pattern.kind in ("fps", "adaptive_fps"):
+        rows, cols = sample_positions(pattern, h, w, image=img)
+        values = img[rows, cols]
+    elif pattern.is_regular_grid:
+        values = img[pattern.offset_y::pattern.stride_y, pattern.offset_x::pattern.stride_x].reshape(-1, c)
+    else:
+        rows, cols = sample_positions(pattern, h, w)
+        values = img[rows, cols]
+    return SampleSet(height=h, width=w, channel_order=channel_order, pattern=pattern,
+                     values=np.ascontiguousarray(values))
+
+
+# =====================================================================================
+# The binary sample file (.sbs), version 1.0 -- specified in docs/format.md
+# =====================================================================================
+
+#: PNG-style signature: a non-ASCII first byte, CR-LF, Ctrl-Z and LF catch 7-bit and
+#: text-mode transfers (see docs/format.md).
+MAGIC = b"\x89SBS\r\n\x1a\n"
+VERSION_MAJOR = 1
+VERSION_MINOR = 0
+#: Size of the version-1.0 header, in bytes; later 1.x headers may be longer.
+HEADER_SIZE_V1_0 = 80
+#: Largest header_length a reader accepts (the field is a u16).
+MAX_HEADER_LENGTH = 0xFFFF
+
+# Fields of the 1.0 header after the magic, little-endian, in file order (offset 8..75);
+# the header CRC-32 is always the *last* four bytes of the header (offset header_length-4).
+_FIELDS = struct.Struct("<BBHIIBBBBHHHHQ16sQQI")
+_FIELD_NAMES = ("version_major", "version_minor", "header_length", "width", "height",
+                "channels", "channel_order_code", "dtype_code", "pattern_code",
+                "stride_x", "stride_y", "offset_x", "offset_y", "seed", "pattern_reserved",
+                "sample_count", "payload_length", "payload_crc32")
+assert len(MAGIC) + _FIELDS.size + 4 == HEADER_SIZE_V1_0
+
+CHANNEL_ORDER_CODES = {"gray": 0, "rgb": 1, "bgr": 2}
+#: dtype code == bytes per value: 1 = uint8, 2 = uint16 little-endian.  (``DTYPE_CODES``,
+#: the same table keyed by numpy dtypes, is built on first access: see ``__getattr__``.)
+_DTYPE_NAMES = {1: "uint8", 2: "uint16"}
+_DTYPE_CODE_BY_NAME = {v: k for k, v in _DTYPE_NAMES.items()}
+PATTERN_CODES = {"grid": 0, "jitter": 1, "fps": 2, "adaptive_fps": 3, "downsample": 4}
+_PATTERN_BY_CODE = {v: k for k, v in PATTERN_CODES.items()}
+_ORDER_BY_CODE = {v: k for k, v in CHANNEL_ORDER_CODES.items()}
+
+# Text-mode / 7-bit transfer damage to the signature, with the explanation we give.
+_MANGLED_MAGIC = (
+    (b"\x89SBS\n\x1a\n", "CR-LF was turned into LF: the file went through a text-mode transfer "
+                         "(FTP ASCII mode, git autocrlf, a text editor); copy it in binary mode"),
+    (b"\x89SBS\r\r\n", "LF was turned into CR-LF: the file went through a text-mode transfer "
+                       "(FTP ASCII mode, git autocrlf, Windows text I/O); copy it in binary mode"),
+    (b"\x09SBS\r\n\x1a\n", "the high bit of the first byte was cleared: the file went through a "
+                           "7-bit channel; copy it in binary mode"),
+    (b"\xc2\x89SBS", "the file was re-encoded as UTF-8 text; copy it in binary mode"),
+    (b"\xef\xbf\xbdSBS", "the file was decoded and re-encoded as text (U+FFFD replacement); "
+                         "copy it in binary mode"),
+)
+_MAX_U64 = 2 ** 64 - 1
+
+
+def __getattr__(name):
+    # Public numpy-keyed table, built lazily so that importing this module needs no numpy.
+    if name == "DTYPE_CODES":
+        import numpy as np
+        table = {np.dtype(np.uint8): 1, np.dtype(np.uint16): 2}
+        globals()["DTYPE_CODES"] = table
+        return table
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+
+
+def _crc32(data) -> int:
+    return zlib.crc32(data) & 0xFFFFFFFF
+
+
+def write_samples(sample_set: SampleSet) -> bytes:
+    """Serialise a :class:`SampleSet` to the ``.sbs`` format, version 1.0.
+
+    Parameters
+    ----------
+    sample_set : SampleSet
+
+    Returns
+    -------
+    bytes
+        An 80-byte header followed by the payload (values in transmission order,
+        channels interleaved, uint16 little-endian).
+
+    Raises
+    ------
+    ValueError
+        The sample set does not fit the format (size beyond the limits, stride or
+        offset beyond 65535, seed outside ``[0, 2**64)``).
+    """
+    import numpy as np
+
+    ss = sample_set
+    _check_writable(ss.width, ss.height, ss.pattern)
+    payload = np.ascontiguousarray(ss.values).astype(ss.values.dtype.newbyteorder("<"),
+                                                     copy=False).tobytes()
+    return _pack_file(width=ss.width, height=ss.height, channel_order=ss.channel_order,
+                      dtype_code=_DTYPE_CODE_BY_NAME[ss.values.dtype.name], pattern=ss.pattern,
+                      sample_count=ss.values.shape[0], payload=payload)
+
+
+def _check_writable(width: int, height: int, p: SamplingPattern) -> None:
+    """ValueError when the size or the pattern's fields do not fit the 1.0 header."""
+    problem = dimension_problem(width, height)
+    if problem:
+        raise ValueError(problem)
+    for label, value in (("stride_x", p.stride_x), ("stride_y", p.stride_y),
+                         ("offset_x", p.offset_x), ("offset_y", p.offset_y)):
+        if not 0 <= value <= 0xFFFF:
+            raise ValueError(f"{label}={value} does not fit the format (0..65535)")
+    if not 0 <= p.seed <= _MAX_U64:
+        raise ValueError(f"seed={p.seed} does not fit the format (0..2**64-1)")
+
+
+def _pack_file(*, width: int, height: int, channel_order: str, dtype_code: int, pattern: SamplingPattern,
+               sample_count: int, payload: bytes) -> bytes:
+    """Header + ``payload`` (already in file byte order): the whole 1.0 file, numpy-free."""
+    p = pattern
+    channels = 1 if channel_order == "gray" else 3
+    fields = _FIELDS.pack(
+        VERSION_MAJOR, VERSION_MINOR, HEADER_SIZE_V1_0, width, height,
+        channels, CHANNEL_ORDER_CODES[channel_order], dtype_code,
+        PATTERN_CODES[p.kind], p.stride_x, p.stride_y, p.offset_x, p.offset_y, p.seed,
+        bytes(16), sample_count, len(payload), _crc32(payload))
+    head = MAGIC + fields
+    return head + struct.pack("<I", _crc32(head)) + payload
+
+
+def _check_magic(data, name: str) -> None:
+    head = bytes(data[:len(MAGIC)])
+    if head == MAGIC:
+        return
+    for mangled, why in _MANGLED_MAGIC:
+        if bytes(data[:len(mangled)]) == mangled:
+            raise NotASampleFileError(f"damaged .sbs signature: {why}", path=name)
+    if len(data) == 0:
+        raise TruncatedFileError("empty file (0 bytes)", path=name)
+    if MAGIC.startswith(head):
+        return      # a prefix of a valid signature: the caller reports the truncation
+    kind = _guess_kind(bytes(data[:16]))
+    raise NotASampleFileError(
+        f"not a stereobudget sample file (no .sbs signature{'; it looks like ' + kind if kind else ''})",
+        path=name)
+
+
+def _guess_kind(head: bytes) -> str | None:
+    signatures = ((b"\x89PNG", "a PNG image"), (b"\xff\xd8\xff", "a JPEG image"),
+                  (b"II*\x00", "a TIFF image"), (b"MM\x00*", "a TIFF image"), (b"BM", "a BMP image"),
+                  (b"\x93NUMPY", "a .npy array"), (b"PK\x03\x04", "a zip archive"),
+                  (b"\x1f\x8b", "a gzip file"), (b"Pf", "a PFM image"), (b"PF", "a PFM image"))
+    for sig, kind in signatures:
+        if head.startswith(sig):
+            return kind
+    if head[:2] in (b"P5", b"P6", b"P2", b"P3"):
+        return "a PGM/PPM image"
+    return None
+
+
+def _parse_header(data, name: str, *, file_size: int | None = None) -> dict:
+    """Validate everything up to the payload; return the header fields.
+
+    ``data`` holds at least the header (or the whole file); ``file_size`` is the real
+    size when ``data`` is only a prefix.  Steps and errors in order: fixed-header length
+    (Truncated), magic (NotASampleFile), major version (UnsupportedVersion), header
+    CRC (CorruptHeader), field values (CorruptHeader), payload length vs header
+    (CorruptPayload), payload length vs file size (Truncated / CorruptPayload).
+    """
+    size = len(data) if file_size is None else file_size
+    _check_magic(data, name)
+    # The version comes before the length check: another major version may have a
+    # shorter header, and "unsupported version" is the useful message then.
+    if len(data) >= len(MAGIC) + 2 and data[len(MAGIC)] != VERSION_MAJOR:
+        major, minor = data[len(MAGIC)], data[len(MAGIC) + 1]
+        raise UnsupportedVersionError(
+            f"format version {major}.{minor} is not supported (this reader understands "
+            f"{VERSION_MAJOR}.x); upgrade stereobudget", path=name)
+    if len(data) < HEADER_SIZE_V1_0:
+        raise TruncatedFileError(f"file ends inside the header ({size} of at least "
+                                 f"{HEADER_SIZE_V1_0} bytes)", path=name)
+    fields = dict(zip(_FIELD_NAMES, _FIELDS.unpack_from(data, len(MAGIC))))
+    minor = fields["version_minor"]
+    header_length = fields["header_length"]
+    if minor == 0 and header_length != HEADER_SIZE_V1_0:
+        raise CorruptHeaderError(f"header length {header_length} is wrong for format 1.0 "
+                                 f"(must be {HEADER_SIZE_V1_0})", path=name)
+    if header_length < HEADER_SIZE_V1_0:
+        raise CorruptHeaderError(f"header length {header_length} is shorter than the "
+                                 f"{HEADER_SIZE_V1_0} bytes of format 1.0", path=name)
+    if len(data) < header_length:
+        raise TruncatedFileError(f"file ends inside the header ({size} of {header_length} bytes)",
+                                 path=name)
+    stored_crc = struct.unpack_from("<I", data, header_length - 4)[0]
+    actual_crc = _crc32(data[:header_length - 4])
+    if stored_crc != actual_crc:
+        raise CorruptHeaderError(f"header checksum mismatch (stored {stored_crc:08x}, computed "
+                                 f"{actual_crc:08x}): the header is damaged", path=name)
+    fields["header_crc32"] = stored_crc
+    _check_fields(fields, name)
+    n = fields["sample_count"]
+    expected_payload = n * fields["channels"] * fields["dtype_code"]
+    declared = fields["payload_length"]
+    if declared != expected_payload:
+        raise CorruptPayloadError(
+            f"header declares a {declared}-byte payload but {n} samples x {fields['channels']} "
+            f"channel(s) x {fields['dtype_code']} byte(s) = {expected_payload} bytes", path=name)
+    actual_payload = size - header_length
+    if actual_payload < declared:
+        raise TruncatedFileError(f"file is truncated: payload has {actual_payload} of {declared} bytes "
+                                 f"({declared - actual_payload} missing)", path=name)
+    if actual_payload > declared:
+        raise CorruptPayloadError(f"{actual_payload - declared} unexpected bytes after the "
+                                  f"{declared}-byte payload", path=name)
+    fields["file_size"] = size
+    return fields
+
+
+def _check_fields(f: dict, name: str) -> None:
+    def bad(message):
+        raise CorruptHeaderError(message, path=name)
+
+    problem = dimension_problem(f["width"], f["height"])
+    if problem:
+        bad(problem)
+    if f["channel_order_code"] not in _ORDER_BY_CODE:
+        bad(f"unknown channel order code {f['channel_order_code']}")
+    order = _ORDER_BY_CODE[f["channel_order_code"]]
+    if f["channels"] != (1 if order == "gray" else 3):
+        bad(f"{f['channels']} channel(s) do not match channel order {order!r}")
+    if f["dtype_code"] not in _DTYPE_NAMES:
+        bad(f"unknown sample dtype code {f['dtype_code']}")
+    if f["pattern_code"] not in _PATTERN_BY_CODE:
+        bad(f"unknown sampling pattern code {f['pattern_code']}")
+    if f["stride_x"] < 1 or f["stride_y"] < 1:
+        bad(f"stride {f['stride_x']}x{f['stride_y']} must be >= 1")
+    if f["offset_x"] >= f["stride_x"] or f["offset_y"] >= f["stride_y"]:
+        bad(f"offset ({f['offset_x']},{f['offset_y']}) must be smaller than the stride "
+            f"({f['stride_x']},{f['stride_y']})")
+    expected = sample_count(_pattern_from_fields(f), f["height"], f["width"])
+    if f["sample_count"] != expected:
+        bad(f"sample count {f['sample_count']} does not match pattern "
+            f"{_PATTERN_BY_CODE[f['pattern_code']]} on {f['width']}x{f['height']} "
+            f"({expected} samples)")
+
+
+def _pattern_from_fields(f: dict) -> SamplingPattern:
+    return SamplingPattern(kind=_PATTERN_BY_CODE[f["pattern_code"]], stride_x=f["stride_x"],
+                           stride_y=f["stride_y"], offset_x=f["offset_x"], offset_y=f["offset_y"],
+                           seed=f["seed"])
+
+
+def read_samples(data, *, source: str = "<bytes>") -> SampleSet:
+    """Parse and fully validate ``.sbs`` bytes.
+
+    Parameters
+    ----------
+    data : bytes-like
+        The whole file.
+    source : str
+        Name used in error messages.
+
+    Returns
+    -------
+    SampleSet
+
+    Raises
+    ------
+    TruncatedFileError, NotASampleFileError, UnsupportedVersionError,
+    CorruptHeaderError, CorruptPayloadError
+        One class per validation step, in the order of ``docs/format.md``.
+    """
+    import numpy as np
+
+    view = memoryview(data).cast("B")
+    fields, payload = _validate_file(view, source)
+    dtype = np.dtype("<u1" if fields["dtype_code"] == 1 else "<u2")
+    values = np.frombuffer(payload, dtype=dtype).astype(dtype.newbyteorder("="))  # a writable copy
+    values = values.reshape(fields["sample_count"], fields["channels"])
+    return SampleSet(height=fields["height"], width=fields["width"],
+                     channel_order=_ORDER_BY_CODE[fields["channel_order_code"]],
+                     pattern=_pattern_from_fields(fields), values=values)
+
+
+def _validate_file(view: memoryview, source: str):
+    """Every check of :func:`read_samples` (header, size, payload CRC); (fields, payload view)."""
+    fields = _parse_header(view, source)
+    payload = view[fields["header_length"]:]
+    stored, actual = fields["payload_crc32"], _crc32(payload)
+    if stored != actual:
+        raise CorruptPayloadError(f"payload checksum mismatch (stored {stored:08x}, computed "
+                                  f"{actual:08x}): sample values are damaged", path=source)
+    return fields, payload
+
+
+def save_samples(sample_set: SampleSet, path, *, overwrite: bool = False) -> int:
+    """Write ``sample_set`` to ``path`` atomically (``-`` = standard output).
+
+    Returns
+    -------
+    int
+        Number of bytes written.
+
+    Raises
+    ------
+    OutputError
+        ``path`` exists without ``overwrite``, or cannot be written.
+    """
+    data = write_samples(sample_set)
+    write_output_bytes(path, data, overwrite=overwrite)
+    return len(data)
+
+
+def load_samples(path) -> SampleSet:
+    """Read and validate the sample file ``path`` (``-`` = standard input).
+
+    Raises
+    ------
+    SampleFileError
+        The subclass naming the first problem found (see :func:`read_samples`); a
+        missing or unreadable file raises :class:`NotASampleFileError`.
+    """
+    data = read_input_bytes(path, error=NotASampleFileError)
+    return read_samples(data, source=display_name(path))
+
+
+def header_dict(fields: dict) -> dict:
+    """JSON-able description of a parsed header (what ``sb-encode --info`` prints)."""
+    f = fields
+    n, w, h = f["sample_count"], f["width"], f["height"]
+    return {
+        "format": "sbs",
+        "version": f"{f['version_major']}.{f['version_minor']}",
+        "version_major": f["version_major"],
+        "version_minor": f["version_minor"],
+        "header_length": f["header_length"],
+        "width": w,
+        "height": h,
+        "channels": f["channels"],
+        "channel_order": _ORDER_BY_CODE[f["channel_order_code"]],
+        "dtype": _DTYPE_NAMES[f["dtype_code"]],
+        "pattern": _PATTERN_BY_CODE[f["pattern_code"]],
+        "stride_x": f["stride_x"],
+        "stride_y": f["stride_y"],
+        "offset_x": f["offset_x"],
+        "offset_y": f["offset_y"],
+        "seed": f["seed"],
+        "sample_count": n,
+        "payload_length": f["payload_length"],
+        "payload_crc32": f"{f['payload_crc32']:08x}",
+        "header_crc32": f"{f['header_crc32']:08x}",
+        "epsilon": n / float(w * h),
+        "file_size": f["file_size"],
+    }
+
+
+def probe(source, *, verify_payload: bool = False, name: str | None = None) -> dict:
+    """Validate a sample file's header (and optionally payload) without decoding values.
+
+    Parameters
+    ----------
+    source : bytes-like, str or os.PathLike
+        The file contents, a path, or ``-`` for standard input.  For a path only the
+        header is read (plus the payload when ``verify_payload``).
+    verify_payload : bool
+        Also check the payload CRC-32.
+    name : str, optional
+        Name used in messages.
+
+    Returns
+    -------
+    dict
+        Every header field, ``epsilon`` (samples / pixels) and ``file_size``; JSON-able.
+        The size of the file is always checked against the header.
+
+    Raises
+    ------
+    SampleFileError
+        As :func:`read_samples`.
+    """
+    if isinstance(source, (bytes, bytearray, memoryview)) or str(source) == STDIO:
+        if not isinstance(source, (bytes, bytearray, memoryview)):
+            name = name or display_name(source)
+            source = read_input_bytes(source, error=NotASampleFileError)
+        name = name or "<bytes>"
+        view = memoryview(source).cast("B")
+        if verify_payload:
+            return header_dict(_validate_file(view, name)[0])
+        return header_dict(_parse_header(view, name))
+    name = name or str(source)
+    path = Path(source)
+    if verify_payload:
+        data = read_input_bytes(path, error=NotASampleFileError)
+        return header_dict(_validate_file(memoryview(data).cast("B"), name)[0])
+    try:
+        with open(path, "rb") as handle:
+            size = os.fstat(handle.fileno()).st_size
+            head = handle.read(MAX_HEADER_LENGTH)
+    except FileNotFoundError:
+        raise NotASampleFileError("no such file", path=name) from None
+    except IsADirectoryError:
+        raise NotASampleFileError("is a directory, not a file", path=name) from None
+    except OSError as exc:
+        raise NotASampleFileError(f"cannot read: {exc.strerror or exc}", path=name) from None
+    return header_dict(_parse_header(memoryview(head), name, file_size=size))
+
+
+# =====================================================================================
+# The camera-side job for one input
+# =====================================================================================
+
+@dataclass(frozen=True)
+class EncodeReport:
+    """What :func:`encode_file` did (JSON-able through :meth:`as_dict`)."""
+
+    source: str
+    output: str
+    width: int
+    height: int
+    channels: int
+    channel_order: str
+    dtype: str
+    pattern: str
+    stride_x: int
+    stride_y: int
+    offset_x: int
+    offset_y: int
+    seed: int
+    sample_count: int
+    epsilon: float
+    header_bytes: int
+    payload_bytes: int
+    file_size: int
+
+    def as_dict(self) -> dict:
+        return dict(self.__dict__)
+
+
+def encode_file(source, output, *, pattern: SamplingPattern, raw_size: tuple[int, int] | None = None,
+                pix_fmt: str | None = None, overwrite: bool = False) -> EncodeReport:
+    """Read one right image, keep its samples, and write the ``.sbs`` file atomically.
+
+    This is the per-file unit of work of ``sb-encode`` (and of batch runners).
+
+    Parameters
+    ----------
+    source : str or os.PathLike
+        Image file (PNG, TIFF, JPEG, PPM...), or ``-`` for standard input.
+    output : str or os.PathLike
+        Sample file to write, or ``-`` for standard output.
+    pattern : SamplingPattern
+        ``grid`` or ``jitter`` (the patterns whose positions the camera can produce).
+    raw_size : (width, height), optional
+        Treat the input as one headerless frame of this size (needs ``pix_fmt``).
+    pix_fmt : str, optional
+        Raw pixel format, see :data:`stereobudget.io._images.RAW_PIXEL_FORMATS`.
+    overwrite : bool
+        Replace an existing output.
+
+    Returns
+    -------
+    EncodeReport
+
+    Raises
+    ------
+    OutputError, ImageReadError, OptionError
+        Bad output path (checked before the input is read), unreadable input, or a
+        pattern that leaves no sample on this image.
+    """
+    check_output_path(output, [source], overwrite)
+    name = display_name(source)
+    log.debug("reading %s", name)
+    if raw_size is not None:
+        if pix_fmt is None:
+            raise OptionError("a raw frame needs a pixel format (--pix-fmt)")
+        data = read_input_bytes(source, error=ImageReadError)
+        if pattern.is_regular_grid:
+            # The camera's common case, without numpy: bytes slicing (see rawgrid).
+            return _encode_raw_grid(data, output, name=name, raw_size=raw_size, pix_fmt=pix_fmt,
+                                    pattern=pattern, overwrite=overwrite)
+        from . import _images as imageio  # numpy; OpenCV loads only for encoded images
+        image, channel_order = imageio.read_raw(data, width=raw_size[0], height=raw_size[1],
+                                                pix_fmt=pix_fmt, name=name)
+    else:
+        from . import _images as imageio
+        image, channel_order = imageio.read_image(source, name=name)
+    height, width = image.shape[:2]
+    _count_samples(pattern, width, height, name)
+    sample_set = encode_image(image, pattern=pattern, channel_order=channel_order)
+    data = write_samples(sample_set)
+    write_output_bytes(output, data, overwrite=overwrite)
+    return _report(name, output, width=width, height=height, channels=sample_set.channels,
+                   channel_order=channel_order, dtype=str(sample_set.dtype), pattern=pattern,
+                   sample_count=sample_set.values.shape[0], file_size=len(data))
+
+
+def _encode_raw_grid(data, output, *, name: str, raw_size: tuple[int, int], pix_fmt: str,
+                     pattern: SamplingPattern, overwrite: bool) -> EncodeReport:
+    """:func:`encode_file` for a raw frame on a ``grid``: same checks, errors and bytes, no numpy."""
+    from ._rawgrid import check_raw_frame, grid_payload
+
+    width, height = raw_size
+    channels, value_bytes, channel_order = check_raw_frame(data, width=width, height=height,
+                                                           pix_fmt=pix_fmt, name=name)
+    n = _count_samples(pattern, width, height, name)
+    _check_writable(width, height, pattern)
+    payload = grid_payload(data, width=width, height=height, pixel_bytes=channels * value_bytes,
+                           stride_x=pattern.stride_x, stride_y=pattern.stride_y,
+                           offset_x=pattern.offset_x, offset_y=pattern.offset_y)
+    data = _pack_file(width=width, height=height, channel_order=channel_order, dtype_code=value_bytes,
+                      pattern=pattern, sample_count=n, payload=payload)
+    write_output_bytes(output, data, overwrite=overwrite)
+    return _report(name, output, width=width, height=height, channels=channels, channel_order=channel_order,
+                   dtype=_DTYPE_NAMES[value_bytes], pattern=pattern, sample_count=n, file_size=len(data))
+
+
+def _count_samples(pattern: SamplingPattern, width: int, height: int, name: str) -> int:
+    """Samples the pattern takes from a ``width`` x ``height`` image; OptionError when none."""
+    n = sample_count(pattern, height, width)
+    if n == 0:
+        raise OptionError(f"offset ({pattern.offset_x},{pattern.offset_y}) leaves no sample in a "
+                          f"{width}x{height} image", path=name)
+    return n
+
+
+def _report(name: str, output, *, width: int, height: int, channels: int, channel_order: str, dtype: str,
+            pattern: SamplingPattern, sample_count: int, file_size: int) -> EncodeReport:
+    """The :class:`EncodeReport` of a file written by :func:`encode_file`."""
+    return EncodeReport(
+        source=name, output="<stdout>" if str(output) == STDIO else str(output),
+        width=width, height=height, channels=channels, channel_order=channel_order, dtype=dtype,
+        pattern=pattern.kind, stride_x=pattern.stride_x, stride_y=pattern.stride_y,
+        offset_x=pattern.offset_x, offset_y=pattern.offset_y, seed=pattern.seed,
+        sample_count=sample_count, epsilon=sample_count / float(height * width),
+        header_bytes=HEADER_SIZE_V1_0, payload_bytes=file_size - HEADER_SIZE_V1_0, file_size=file_size)
