@@ -519,68 +519,27 @@ def _as_image_dtype(image, dtype):
     return np.clip(np.rint(values), 0, top).astype(dtype)
 
 
-def _scalar_extras(obj) -> dict:
-    """JSON-able scalar facts from a synthesis result (``psnr_right_samples``...)."""
-    import math
-    import numbers
-
-    source = {}
-    if isinstance(obj, dict):
-        source = obj
-    elif hasattr(obj, "summary") and callable(obj.summary):
-        source = obj.summary()
-    elif hasattr(obj, "__dict__"):
-        source = vars(obj)
-    extras = {}
-    for key, value in source.items():
-        if isinstance(value, bool) or isinstance(value, (str,)):
-            extras[key] = value
-        elif isinstance(value, numbers.Integral):
-            extras[key] = int(value)
-        elif isinstance(value, numbers.Real):
-            # JSON has no inf/NaN: an infinite PSNR (exact match) or an undefined one is null.
-            extras[key] = float(value) if math.isfinite(value) else None
-    return extras
-
-
-def _right_synthesis():
-    """:func:`stereobudget.synthesis.recover_right`, or OptionError when it is not installed."""
-    import importlib
-    try:
-        return importlib.import_module("stereobudget.synthesis._synthesis").recover_right
-    except (ImportError, AttributeError) as exc:
-        raise OptionError(f"--right needs stereobudget.synthesis.recover_right, which this "
-                          f"installation lacks ({exc})") from None
-
-
 def recover_right_image(left, disparity, samples):
     """Call :func:`stereobudget.synthesis.recover_right`; returns ``(image, extras)``.
 
-    ``extras`` holds the scalar facts the synthesis reports (PSNR at the samples...),
-    ``holes_fraction`` and, under ``"_timings"``, its stages.
-
-    Raises
-    ------
-    OptionError
-        The synthesis module is not available in this installation.
+    ``extras`` holds the PSNR at the samples (dB; null when infinite), ``holes_fraction``
+    and, under ``"_timings"``, the synthesis stages.
     """
-    produced = _right_synthesis()(left, disparity, samples)
+    import math
+
+    from ..synthesis._synthesis import recover_right
+
+    recovered = recover_right(left, disparity, samples)
     extras = {}
-    if isinstance(produced, tuple):
-        image = produced[0]
-        for extra in produced[1:]:
-            extras.update(_scalar_extras(extra))
-    elif hasattr(produced, "image"):
-        image = produced.image
-        extras.update(_scalar_extras(produced))
-        holes = getattr(produced, "holes", None)
-        if holes is not None and getattr(holes, "size", 0):
-            extras["holes_fraction"] = float(holes.mean())
-        for stage, seconds in (getattr(produced, "timings", None) or {}).items():
-            extras.setdefault("_timings", {})[f"right_{stage}"] = seconds
-    else:
-        image = produced
-    return image, extras
+    for key in ("psnr_at_samples_before_enhancement", "psnr_at_samples_before_reinsertion"):
+        value = float(getattr(recovered, key))
+        # JSON has no inf/NaN: an infinite PSNR (exact match) or an undefined one is null.
+        extras[key] = value if math.isfinite(value) else None
+    if recovered.holes.size:
+        extras["holes_fraction"] = float(recovered.holes.mean())
+    for stage, seconds in recovered.timings.items():
+        extras.setdefault("_timings", {})[f"right_{stage}"] = seconds
+    return recovered.image, extras
 
 
 def _check_output_formats(job: DecodeJob) -> None:
@@ -635,8 +594,6 @@ def decode_file(job: DecodeJob) -> dict:
             raise OptionError(f"--{seen[path]} and --{kind} name the same file", path=path)
         seen[path] = kind
     _check_output_formats(job)
-    if job.right is not None:
-        _right_synthesis()          # fail before the work when --right cannot be honoured
     inputs = [job.left, job.samples]
     overwrite = _prepare_outputs(list(outputs.values()), inputs, overwrite=job.overwrite,
                                  make_dirs=job.batch)

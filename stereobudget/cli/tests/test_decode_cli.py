@@ -7,7 +7,6 @@ every test; the images are small crops of skimage's Middlebury motorcycle.
 from __future__ import annotations
 
 import json
-import sys
 
 import cv2
 import numpy as np
@@ -154,14 +153,6 @@ def test_right_image_keeps_channels_and_bit_depth(tmp_path):
     summary = json.loads(result.stdout)
     assert summary["outputs"] == {"right": str(out)}
     assert "right" in summary["timings"]
-
-
-def test_right_fails_clearly_without_synthesis(pair, tmp_path, monkeypatch):
-    left_path, samples_path, *_ = pair
-    monkeypatch.setitem(sys.modules, "stereobudget.synthesis", None)   # import fails
-    result = invoke(left_path, samples_path, "--max-disp", MAX_DISP, "--right", tmp_path / "r.png")
-    assert_clean_error(result, OptionError, "stereobudget.synthesis")
-    assert not (tmp_path / "r.png").exists()
 
 
 def test_size_mismatch(pair, tmp_path):
