@@ -10,12 +10,12 @@ import pytest
 
 
 def _drop_stale_numba_caches():
-    """Delete the package's numba cache files when any of its sources changed since the last run.
+    """Delete the package's numba cache files when any of its library sources changed since the last run.
 
     numba checks a cached kernel against its own source file only.  Many kernels inline
     functions of other modules (``volumes._pair_rows`` inlines the bilateral slice), so
     after an edit to those a working copy would run, and test, the old compiled code.
-    The fingerprint of every source file is kept beside the cache; when it differs, the
+    The fingerprint of every library source file is kept beside the cache; when it differs, the
     whole cache goes and the kernels are compiled afresh.  A fresh clone has no cache and
     is not affected; nor is a cache moved elsewhere with NUMBA_CACHE_DIR (not handled here).
     """
@@ -23,9 +23,11 @@ def _drop_stale_numba_caches():
     if spec is None or not spec.submodule_search_locations or os.environ.get("NUMBA_CACHE_DIR"):
         return
     package = Path(next(iter(spec.submodule_search_locations)))
-    caches = [package / "__pycache__", Path(__file__).parent / "__pycache__"]
+    caches = list(package.rglob("__pycache__"))
     digest = hashlib.sha256()
-    for source in sorted([*package.rglob("*.py"), *Path(__file__).parent.glob("*.py")]):
+    # Test files hold no cached kernels: editing one must not cost a recompile of everything.
+    sources = [path for path in package.rglob("*.py") if "tests" not in path.relative_to(package).parts]
+    for source in sorted(sources):
         digest.update(str(source).encode() + b"\0" + source.read_bytes())
     stamp = package / "__pycache__" / "numba-sources.sha256"
     try:
