@@ -236,3 +236,43 @@ def median_filter_disparity(disparity: np.ndarray, size: int) -> np.ndarray:
         return disparity
     import cv2
     return cv2.medianBlur(np.ascontiguousarray(disparity, np.float32), int(size))
+
+
+@njit(cache=True, parallel=True)
+def fill_from_row(disparity, valid):
+    """Each invalid pixel takes the disparity of the nearest valid pixel of its row.
+
+    The left one wins a tie; a row without a valid pixel keeps its values.  After a
+    semi-global left-right check this measured better than propagating along I1's tree
+    (Yang's refinement), whose pull towards fronto-parallel neighbours undoes slanted
+    surfaces (23 real pairs: Vintage 28 % against 49 %, Playtable 25 % against 35 %).
+
+    Parameters
+    ----------
+    disparity : ndarray, float32 (H, W)
+    valid : ndarray, bool (H, W)
+
+    Returns
+    -------
+    ndarray, float32 (H, W)
+    """
+    h, w = disparity.shape
+    out = disparity.copy()
+    for y in prange(h):
+        last = -1                      # the nearest valid column to the left
+        x = 0
+        while x < w:
+            if valid[y, x]:
+                last = x
+                x += 1
+                continue
+            nxt = x + 1                # the run of invalid pixels is [x, nxt)
+            while nxt < w and not valid[y, nxt]:
+                nxt += 1
+            for xx in range(x, nxt):
+                if last >= 0 and (nxt >= w or xx - last <= nxt - xx):
+                    out[y, xx] = disparity[y, last]
+                elif nxt < w:
+                    out[y, xx] = disparity[y, nxt]
+            x = nxt
+    return out

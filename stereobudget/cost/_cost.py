@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import numpy as np
 from numba import njit, prange
+from ._census import popcount32
 
 #: Default truncation of the absolute-difference cost (8-bit units). Truncation bounds
 #: the influence of occluded and specular pixels on the aggregated cost.
@@ -101,8 +102,9 @@ def pixel_cost(left_pixel, right_pixel, truncation):
 
 
 @njit(cache=True, inline="always")
-def sparse_pair_cost(left_pixel, right_pixel, left_step, right_step, truncation, step_weight, step_truncation):
-    """Eq. (2) with a gradient term that sparse samples still support.
+def sparse_pair_cost(left_pixel, right_pixel, left_step, right_step, truncation, step_weight, step_truncation,
+                     left_code=0, right_code=-1, census_weight=0.0):
+    """Eq. (2) with the terms that sparse samples still support: a step and a lattice census.
 
     Two samples ``s`` pixels apart on a row of I2 give the difference
     ``right_step = I2(x + s) - I2(x)`` exactly; I1 gives ``left_step`` over the same
@@ -110,12 +112,21 @@ def sparse_pair_cost(left_pixel, right_pixel, left_step, right_step, truncation,
     free of aliasing because both sides measure the same quantity.  Both terms are
     brought to ``[0, truncation]`` before mixing; where no step exists (NaN: last sample
     of a row, non-grid patterns) the colour term is used alone.
+
+    The lattice census (:func:`stereobudget.cost.lattice_census`) compares the order of a
+    sample against its 8 grid neighbours with the order of I1's pixels at the same
+    spacing: it survives a gain or exposure difference between the cameras, which the
+    colour term reads as a mismatch.  Its 0-8 differing bits are scaled to
+    ``[0, truncation]`` and mixed in with ``census_weight`` (``right_code`` < 0: none).
     """
     colour = pixel_cost(left_pixel, right_pixel, truncation)
-    if step_weight <= 0 or np.isnan(left_step) or np.isnan(right_step):
-        return colour
-    step = min(abs(left_step - right_step), step_truncation) * (truncation / step_truncation)
-    return (1 - step_weight) * colour + step_weight * step
+    if step_weight > 0 and not (np.isnan(left_step) or np.isnan(right_step)):
+        step = min(abs(left_step - right_step), step_truncation) * (truncation / step_truncation)
+        colour = (1 - step_weight) * colour + step_weight * step
+    if census_weight > 0 and right_code >= 0:
+        bits = popcount32(np.uint32(left_code) ^ np.uint32(right_code))
+        colour = (1 - census_weight) * colour + census_weight * (bits * (truncation / 8))
+    return colour
 
 
 def sample_row_steps(lattice_gray: np.ndarray) -> np.ndarray:

@@ -13,8 +13,9 @@ pipeline of pure functions from the other modules:
 * ``downsample`` (paper Fig. 2(a)): the camera sent block means; they are upsampled, I1
   is passed through the same down/up operator so both have the same spectrum, and the
   pair is matched like a full pair (LR check + refinement).
-* ``full`` (``stride 1``): the same aggregation on the full DSI of Eq. (1) with Yang's
-  left-right check and non-local refinement; the "100 % of I2" reference.
+* ``full`` (``stride 1``): census cost, semi-global aggregation, left-right check and
+  non-local refinement (:mod:`stereobudget.decoding._full`); ``full_cost="ad"`` keeps
+  the paper's reference, the tree aggregation of the Eq. (1) DSI with Yang's check.
 """
 
 from __future__ import annotations
@@ -81,6 +82,10 @@ class DecoderParams:
         Sparse DSI: weight and truncation (gray levels) of the difference between row
         neighbours of the sample grid compared with I1's difference over the same spacing
         (:func:`stereobudget.cost.sparse_pair_cost`); the sweep in docs/results.md.
+    sparse_census_weight : float
+        Weight of the lattice census in the Sparse DSI (:func:`stereobudget.cost.sparse_pair_cost`):
+        each sample's order against its 8 grid neighbours, compared with I1's at the same
+        spacing, survives the exposure differences of real camera pairs.
     noise_reference : float or None
         Every cost truncation is at least this many times the difference that the left
         image's noise alone produces (see :func:`adapt_to_noise`).  None: off.
@@ -94,6 +99,27 @@ class DecoderParams:
         effective kernel keeps its sigma, and the sweep recorded in the commit history
         (``benchmarks/sweep.py``) finds every scene within 0.2 pp of 2 cells per
         sigma at strides 3, 5 and 8, for 1/8 of the grid cells.
+    hybrid_aggregation : {"tree", "semiglobal"}
+        Aggregation of Hybrid's mixed DSI: Yang's tree with its left-right check against
+        the interpolated right image and non-local refinement, or the semi-global paths
+        of the full pair (P1, P2 from the mixed volume's typical margin) with a diagonal
+        check and a row fill.
+    full_cost : {"census", "ad"}
+        Cost and aggregation of the full pair.  ``"census"``: 5x5 census, semi-global
+        aggregation (:mod:`stereobudget.decoding._full`); on the 23 real pairs of the
+        development set 16.8 % bad pixels against OpenCV SGBM's 20.8 % and the tree on
+        absolute differences' 26 % (``benchmarks/evaluate_real.py``; docs/results.md).
+        ``"ad"``: the paper's Eq. (1) cost on the tree (Yang), which assumes equal
+        exposure in both cameras.
+    sgm_p1, sgm_p2 : float
+        Semi-global penalties of a one-level and of a larger disparity change, as
+        multiples of the cost volume's typical margin (the data term's own scale, so the
+        same multiples serve every scene, size and cost); the sweep is in docs/results.md
+        (``benchmarks/evaluate_real.py --param sgm_p2=4``).
+    sgm_edge_scale : float
+        Gray-level difference across which P2 halves (depth edges follow colour edges).
+    sgm_paths : {4, 8}
+        Semi-global paths: horizontal and vertical, plus the diagonals for 8.
     right_check : {"tree", "diagonal"}
         Where the left-right check of Hybrid, Downsample and the full pair gets the right
         view's disparity: ``"tree"`` aggregates the right view's costs on the right
@@ -115,10 +141,17 @@ class DecoderParams:
     lowpass_per_stride: float = 0.5
     step_weight: float = 0.4
     step_truncation: float = 5.0
+    sparse_census_weight: float = 0.5
     noise_reference: float | None = 2.5
     hybrid_sparse_weight: float | None = None
     grid_cells_per_sigma_s: float = 1.0
     grid_cells_per_sigma_r: float = 1.0
+    hybrid_aggregation: str = "tree"
+    full_cost: str = "census"
+    sgm_p1: float = 1.0
+    sgm_p2: float = 8.0
+    sgm_edge_scale: float = 8.0
+    sgm_paths: int = 8
     right_check: str = "tree"
 
 
@@ -250,6 +283,8 @@ def _sparse_fill_arguments(left_f, guide, samples, params):
         sigma_s=params.sigma_s_per_stride * _stride(samples), sigma_r=params.sigma_r,
         truncation=params.truncation, right_steps=steps, step_spacing=samples.pattern.stride_x,
         step_weight=params.step_weight, step_truncation=params.step_truncation,
+        census_spacing=(samples.pattern.stride_x, samples.pattern.stride_y) if samples.pattern.is_regular_grid else None,
+        census_weight=params.sparse_census_weight,
         cells_per_sigma_s=params.grid_cells_per_sigma_s, cells_per_sigma_r=params.grid_cells_per_sigma_r)
 
 
@@ -273,18 +308,19 @@ def _decode_hybrid(left_f, guide, samples, tree_guide, *, min_disp, num_disp, pa
         sigma = params.lowpass_per_stride * stride
         right_lp = lowpass_interpolation(samples, sigma=sigma)
         left_lp = gaussian_lowpass(left_f, sigma=sigma)
+    if params.hybrid_aggregation == "semiglobal":
+        return _hybrid_semiglobal(left_lp, right_lp, grids, guide, min_disp=min_disp, num_disp=num_disp,
+                                  params=params, timer=timer, mix_weights=_hybrid_mix(params, weight))
     with timer("tree"):
         tree, left_layout, right_layout = pair_trees(tree_guide, right_lp, params=params)
     with timer("cost"):
         # The fill and the dense DSI of the low-passed pair, both brought to [0, 1] by their
         # largest possible value and mixed per pixel; the right view's volume is gathered
         # from the same rows (volumes.pair_cost_rows).
-        dense_max = (1 - params.grad_weight) * params.full_truncation + params.grad_weight * params.grad_truncation
         left_rows, right_rows = pair_cost_rows(
             left_lp, right_lp, min_disp=min_disp, num_disp=layers, truncation=params.full_truncation,
             grad_weight=params.grad_weight, grad_truncation=params.grad_truncation, left_layout=left_layout,
-            right_layout=right_layout, grids=grids, guide=guide,
-            mix_weights=(weight / params.truncation, (1.0 - weight) / dense_max))
+            right_layout=right_layout, grids=grids, guide=guide, mix_weights=_hybrid_mix(params, weight))
     release_grids(grids)
     del grids
     disp, _ = left_right_refined_rows(left_rows, right_rows, left_layout=left_layout, right_layout=right_layout,
@@ -292,6 +328,45 @@ def _decode_hybrid(left_f, guide, samples, tree_guide, *, min_disp, num_disp, pa
                                       num_disp=num_disp)
     scratch.recycle(left_rows, right_rows)
     return disp
+
+
+def _hybrid_mix(params, weight):
+    """Weights of the fill and of the dense DSI in Hybrid's mean, each brought to [0, 1]
+    by its largest possible value."""
+    dense_max = (1 - params.grad_weight) * params.full_truncation + params.grad_weight * params.grad_truncation
+    return weight / params.truncation, (1.0 - weight) / dense_max
+
+
+def _hybrid_semiglobal(left_lp, right_lp, grids, guide, *, min_disp, num_disp, params, timer, mix_weights):
+    """Hybrid's mixed DSI aggregated along semi-global paths, LR-checked on the diagonal,
+    rejected pixels filled from their row (as the full pair, :mod:`stereobudget.decoding._full`)."""
+    from types import SimpleNamespace
+
+    from ..aggregate._pair_volumes import pair_cost_rows
+    from ..aggregate._refine import fill_from_row, left_right_stable
+    from ..aggregate._semiglobal import semiglobal_aggregate, semiglobal_winners
+    from ._full import typical_margin
+    h, w = guide.shape
+    layers = volume_layers(num_disp)
+    with timer("cost"):
+        pixel_order = SimpleNamespace(row_of_pixel=np.arange(h * w, dtype=np.int32))
+        rows, _ = pair_cost_rows(left_lp, right_lp, min_disp=min_disp, num_disp=layers,
+                                 truncation=params.full_truncation, grad_weight=params.grad_weight,
+                                 grad_truncation=params.grad_truncation, left_layout=pixel_order, grids=grids,
+                                 guide=guide, mix_weights=mix_weights)
+        release_grids(grids)
+        cost = np.ascontiguousarray(rows.reshape(h, w, layers)[:, :, :num_disp])  # float32
+        scratch.recycle(rows)
+        margin = typical_margin(cost, floor=0.0)
+    with timer("aggregate"):
+        total = semiglobal_aggregate(cost, guide, p1=params.sgm_p1 * margin, p2=params.sgm_p2 * margin,
+                                     edge_scale=params.sgm_edge_scale, paths=params.sgm_paths)
+        del cost
+        disp_left, disp_right = semiglobal_winners(total, int(min_disp))
+        del total
+    with timer("refine"):
+        stable = left_right_stable(disp_left, disp_right, np.float32(1.0))
+        return median_filter_disparity(fill_from_row(disp_left, stable), params.median_size)
 
 
 def _decode_downsample(left_f, samples, tree_guide, *, min_disp, num_disp, params, timer):
@@ -315,6 +390,10 @@ def _resolve_method(left, samples, *, method, params, min_disp, max_disp, adapt=
     method = method or DEFAULT_METHOD
     if method not in METHODS:
         raise OptionError(f"unknown method {method!r}; expected one of {', '.join(METHODS)}")
+    if params.hybrid_aggregation not in ("tree", "semiglobal"):
+        raise OptionError(f"unknown hybrid_aggregation {params.hybrid_aggregation!r}; expected 'tree' or 'semiglobal'")
+    if params.full_cost not in ("census", "ad"):
+        raise OptionError(f"unknown full_cost {params.full_cost!r}; expected 'census' or 'ad'")
     if params.right_check not in ("tree", "diagonal"):
         raise OptionError(f"unknown right_check {params.right_check!r}; expected 'tree' or 'diagonal'")
     check_inputs(left, samples, min_disp=min_disp, max_disp=max_disp)
@@ -443,9 +522,12 @@ def _decode_whole_frame(left, samples, *, max_disp, min_disp, method, params, ma
         disp = _decode_downsample(left_f, samples, tree_guide, min_disp=min_disp, num_disp=num_disp,
                                   params=params, timer=timer)
     else:
-        from ..aggregate._refine import full_pair_disparity
         with timer("prepare"):
             right_f = _sample_values_f32(samples).reshape(samples.height, samples.width, samples.channels)
+        if params.full_cost == "census":
+            from ._full import census_semiglobal_disparity as full_pair_disparity
+        else:
+            from ..aggregate._refine import full_pair_disparity
         disp = full_pair_disparity(left_f, right_f, tree_guide=tree_guide, min_disp=min_disp, num_disp=num_disp,
                                    params=params, timer=timer)
     return DecodeResult(disparity=disp, method=method, min_disp=int(min_disp), max_disp=int(max_disp),

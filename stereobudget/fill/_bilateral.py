@@ -665,7 +665,8 @@ def _splat_cost(values_flat, band_flat, offsets, band_offsets, weights, layer, c
 
 @njit(cache=True, parallel=True)
 def _splat_sparse_dsi_split(rows, cols, right_values, right_steps, left, guide, min_disp, truncation,
-                            step_spacing, step_weight, step_truncation, inv_cs, inv_cr,
+                            step_spacing, step_weight, step_truncation, right_codes, left_codes, census_weight,
+                            inv_cs, inv_cr,
                             grid_val, band_w, blocks):
     """Splat Eq. (2): right sample k at (row, col) meets left pixel (row, col + d) in layer d.
 
@@ -698,7 +699,8 @@ def _splat_sparse_dsi_split(rows, cols, right_values, right_steps, left, guide, 
                     continue
                 left_step = _left_step(guide, y, x, step_spacing, step_weight)
                 cost = sparse_pair_cost(left[y, x], right_values[k], left_step, right_steps[k], truncation,
-                                        step_weight, step_truncation)
+                                        step_weight, step_truncation, left_codes[y, x], right_codes[k],
+                                        census_weight)
                 x0, tx = _hat(x * inv_cs, gx_n)
                 z0, tz = _hat(guide[y, x] * inv_cr, gz_n)
                 _corner_weights(ty, tx, tz, weights)
@@ -709,7 +711,7 @@ def _splat_sparse_dsi_split(rows, cols, right_values, right_steps, left, guide, 
 @njit(cache=True, inline="always")
 def _splat_lattice_rows(r_lo, r_hi, cell_lo, cell_hi, sample_rows, offset_x, stride, n_cols, right_values,
                         right_steps, left, guide, min_disp, truncation, step_spacing, step_weight, step_truncation,
-                        inv_cs, inv_cr, grid_val, band_w, base_w, channel_of_residue):
+                        right_codes, left_codes, census_weight, inv_cs, inv_cr, grid_val, band_w, base_w, channel_of_residue):
     """Splat sample rows ``[r_lo, r_hi)`` into the grids' cells whose y index lies in
     ``[cell_lo, cell_hi]``: every layer's cost into ``grid_val``, the band's weights into
     ``band_w`` and each left pixel's mask weight into its base channel of ``base_w``.
@@ -774,9 +776,10 @@ def _splat_lattice_rows(r_lo, r_hi, cell_lo, cell_hi, sample_rows, offset_x, str
             left_step = _left_step(guide, y, x, step_spacing, step_weight)
             # Sample of layer i: column (reach - i) / stride of the row, one less per step.
             k = r * n_cols + (reach - i_first) // stride
+            left_code = left_codes[y, x]
             for i in range(i_first, i_max + 1, stride):
                 cost = sparse_pair_cost(left[y, x], right_values[k], left_step, right_steps[k], truncation,
-                                        step_weight, step_truncation)
+                                        step_weight, step_truncation, left_code, right_codes[k], census_weight)
                 if all_corners:  # a fixed trip count: the 8 adds unrolled
                     _splat_cost(values_flat, band_flat, offsets, band_offsets, weights, i, cost)
                 else:
@@ -789,7 +792,8 @@ def _splat_lattice_rows(r_lo, r_hi, cell_lo, cell_hi, sample_rows, offset_x, str
 
 @njit(cache=True, parallel=True)
 def _splat_lattice(sample_rows, offset_x, stride, n_cols, right_values, right_steps, left, guide, min_disp,
-                   truncation, step_spacing, step_weight, step_truncation, inv_cs, inv_cr,
+                   truncation, step_spacing, step_weight, step_truncation, right_codes, left_codes, census_weight,
+                   inv_cs, inv_cr,
                    grid_val, band_w, base_w, channel_of_residue, part_rows, shared_cells, zero_cells):
     """All sample rows of a full lattice into the value, band and base-weight grids, the
     rows cut into parts ``[part_rows[p], part_rows[p + 1])``, one per thread; part ``p``
@@ -823,13 +827,15 @@ def _splat_lattice(sample_rows, offset_x, stride, n_cols, right_values, right_st
         # Cells up to the last one the part above reaches (shared_cells[p]) wait for the second loop.
         _splat_lattice_rows(part_rows[p], part_rows[p + 1], shared_cells[p] + 1, gy_n, sample_rows, offset_x,
                             stride, n_cols, right_values, right_steps, left, guide, min_disp, truncation,
-                            step_spacing, step_weight, step_truncation, inv_cs, inv_cr, grid_val, band_w, base_w,
+                            step_spacing, step_weight, step_truncation, right_codes, left_codes, census_weight,
+                            inv_cs, inv_cr, grid_val, band_w, base_w,
                             channel_of_residue)
     for p in prange(parts):
         if shared_cells[p] >= 0:
             _splat_lattice_rows(part_rows[p], part_rows[p + 1], 0, shared_cells[p], sample_rows, offset_x, stride,
                                 n_cols, right_values, right_steps, left, guide, min_disp, truncation, step_spacing,
-                                step_weight, step_truncation, inv_cs, inv_cr, grid_val, band_w, base_w,
+                                step_weight, step_truncation, right_codes, left_codes, census_weight,
+                                inv_cs, inv_cr, grid_val, band_w, base_w,
                                 channel_of_residue)
 
 
@@ -885,7 +891,8 @@ def _lattice_stride(rows: np.ndarray, cols: np.ndarray, width: int) -> int:
 
 
 def _lattice_sparse_dsi_grids(left, guide, rows, cols, right_values, right_steps, *, stride, geom, min_disp,
-                              num_disp, truncation, step_spacing, step_weight, step_truncation):
+                              num_disp, truncation, step_spacing, step_weight, step_truncation, right_codes,
+                              left_codes, census_weight):
     h, w = guide.shape
     gy, gx, gz = geom.shape
     inv_cs, inv_cr = 1.0 / geom.cell_s, 1.0 / geom.cell_r
@@ -923,7 +930,8 @@ def _lattice_sparse_dsi_grids(left, guide, rows, cols, right_values, right_steps
         np.arange(base_w.shape[3])
     _splat_lattice(sample_rows, offset_x, int(stride), n_cols, np.ascontiguousarray(right_values, np.float32),
                    np.ascontiguousarray(right_steps, np.float32), left, guide, int(min_disp), np.float32(truncation),
-                   int(step_spacing), np.float32(step_weight), np.float32(step_truncation), inv_cs, inv_cr, grid_val,
+                   int(step_spacing), np.float32(step_weight), np.float32(step_truncation), right_codes, left_codes,
+                   np.float32(census_weight), inv_cs, inv_cr, grid_val,
                    band_w, base_w, channel_of_residue, *_lattice_parts(sample_rows, inv_cs, gy, get_num_threads()))
     return _slice_grids(_blur_grid(grid_val, geom), _blur_base_grid(base_w, geom), _blur_grid(band_w, geom), geom,
                         density=len(rows) / float(h * w), missing_value=truncation,
@@ -974,6 +982,7 @@ def filled_sparse_dsi(left: np.ndarray, guide: np.ndarray, rows: np.ndarray, col
                       sigma_s: float, sigma_r: float, truncation: float,
                       right_steps: np.ndarray | None = None, step_spacing: int = 1,
                       step_weight: float = 0.0, step_truncation: float = 5.0,
+                      census_spacing: tuple[int, int] | None = None, census_weight: float = 0.0,
                       cells_per_sigma_s: float = 2.0, cells_per_sigma_r: float = 2.0,
                       pixel_of_row: np.ndarray | None = None) -> np.ndarray:
     """The paper's filled sparse DSI: Eq. (2) at the samples, spread by Eq. (3) to every pixel.
@@ -1001,6 +1010,12 @@ def filled_sparse_dsi(left: np.ndarray, guide: np.ndarray, rows: np.ndarray, col
         Column spacing of the steps (the grid stride).
     step_weight, step_truncation : float
         Weight and truncation (gray levels) of the step term.
+    census_spacing : (int, int), optional
+        ``(stride_x, stride_y)`` of a regular sample grid whose samples arrive row by
+        row: enables the lattice census term of :func:`stereobudget.cost.sparse_pair_cost`
+        with weight ``census_weight``.
+    census_weight : float
+        Weight of the lattice census in the sparse cost (0: off).
     pixel_of_row : ndarray of int (H * W,), optional
         Row ``k`` of an ``(H * W, num_disp)`` result holds pixel ``pixel_of_row[k]``
         (row-major), e.g. a tree's depth-first order (:class:`stereobudget.aggregate.TreeLayout`).
@@ -1013,6 +1028,7 @@ def filled_sparse_dsi(left: np.ndarray, guide: np.ndarray, rows: np.ndarray, col
     grids = sparse_dsi_grids(left, guide, rows, cols, right_values, min_disp=min_disp, num_disp=num_disp,
                              sigma_s=sigma_s, sigma_r=sigma_r, truncation=truncation, right_steps=right_steps,
                              step_spacing=step_spacing, step_weight=step_weight, step_truncation=step_truncation,
+                             census_spacing=census_spacing, census_weight=census_weight,
                              cells_per_sigma_s=cells_per_sigma_s, cells_per_sigma_r=cells_per_sigma_r)
     volume = slice_volume(guide, grids, pixel_of_row=pixel_of_row)
     release_grids(grids)
@@ -1024,11 +1040,31 @@ def release_grids(grids: SliceGrids) -> None:
     recycle(grids.values, grids.base_weights, grids.band_weights)
 
 
+def _census_codes(guide, rows, cols, right_values, census_spacing, census_weight):
+    """Lattice census codes of the samples and I1's codes at the same spacing, or (None, None).
+
+    The samples must be a regular grid sent row by row (rows x cols in row-major order).
+    """
+    from ..cost._census import lattice_census, spaced_census
+    from ..cost._cost import to_gray
+    if census_spacing is None or census_weight <= 0 or len(rows) < 4:
+        return None, None
+    rows, cols = np.asarray(rows, np.int64), np.asarray(cols, np.int64)
+    n_cols = int(np.argmax(rows != rows[0])) if np.any(rows != rows[0]) else len(rows)
+    if len(rows) % n_cols:
+        return None, None
+    values = np.ascontiguousarray(right_values, np.float32).reshape(len(rows) // n_cols, n_cols, -1)
+    codes = lattice_census(to_gray(values))
+    spacing_x, spacing_y = census_spacing
+    return codes, spaced_census(guide, spacing_x=spacing_x, spacing_y=spacing_y)
+
+
 def sparse_dsi_grids(left: np.ndarray, guide: np.ndarray, rows: np.ndarray, cols: np.ndarray,
                      right_values: np.ndarray, *, min_disp: int, num_disp: int,
                      sigma_s: float, sigma_r: float, truncation: float,
                      right_steps: np.ndarray | None = None, step_spacing: int = 1,
                      step_weight: float = 0.0, step_truncation: float = 5.0,
+                     census_spacing: tuple[int, int] | None = None, census_weight: float = 0.0,
                      cells_per_sigma_s: float = 2.0, cells_per_sigma_r: float = 2.0) -> SliceGrids:
     """The splatted and blurred grids of :func:`filled_sparse_dsi`, not yet sliced.
 
@@ -1047,19 +1083,25 @@ def sparse_dsi_grids(left: np.ndarray, guide: np.ndarray, rows: np.ndarray, cols
     if right_steps is None:
         right_steps = np.full(len(rows), np.nan, np.float32)
         step_weight = 0.0
+    right_codes, left_codes = _census_codes(guide, rows, cols, right_values, census_spacing,
+                                            census_weight)
+    if right_codes is None:
+        right_codes, left_codes, census_weight = np.full(len(rows), -1, np.int64), np.zeros((h, w), np.uint8), 0.0
     stride = _lattice_stride(np.asarray(rows, np.int64), np.asarray(cols, np.int64), w) if min_disp >= 0 else 0
     if stride and num_disp > stride:
         return _lattice_sparse_dsi_grids(left, guide, rows, cols, right_values, right_steps, stride=stride,
                                          geom=geom, min_disp=int(min_disp), num_disp=int(num_disp),
                                          truncation=truncation, step_spacing=step_spacing,
-                                         step_weight=step_weight, step_truncation=step_truncation)
+                                         step_weight=step_weight, step_truncation=step_truncation,
+                                         right_codes=right_codes, left_codes=left_codes, census_weight=census_weight)
     grid_val = zeroed_volume(geom.shape + (num_disp,))
     grid_w = zeroed_volume(geom.shape + (num_disp,))
     _splat_sparse_dsi_split(np.asarray(rows, np.int64), np.asarray(cols, np.int64),
                             np.ascontiguousarray(right_values, np.float32),
                             np.ascontiguousarray(right_steps, np.float32), left, guide, int(min_disp),
                             np.float32(truncation), int(step_spacing), np.float32(step_weight),
-                            np.float32(step_truncation), 1.0 / geom.cell_s, 1.0 / geom.cell_r, grid_val, grid_w,
+                            np.float32(step_truncation), right_codes, left_codes, np.float32(census_weight),
+                            1.0 / geom.cell_s, 1.0 / geom.cell_r, grid_val, grid_w,
                             get_num_threads())
     return _slice_grids(_blur_grid(grid_val, geom), _blur_base_grid(grid_w, geom), None, geom,
                         density=len(rows) / float(h * w), missing_value=truncation)

@@ -226,3 +226,29 @@ def test_disparities_past_max_disp_never_win(method):
     samples = encode_image(right, pattern=SamplingPattern("grid", 3, 3))
     disparity = stereobudget.decode(left, samples, max_disp=9, method=method).disparity
     assert disparity.max() <= 9.0
+
+
+def _exposed(image, gain, offset):
+    """Another camera's exposure: a gain and an offset on every channel."""
+    return np.clip(image.astype(np.float32) * gain + offset, 0, 255).astype(np.uint8)
+
+
+@pytest.mark.parametrize("kind", ["slanted", "large_range"])
+def test_full_pair_survives_an_exposure_difference(kind):
+    # Real camera pairs differ in gain: the census cost reads only the order of
+    # neighbouring pixels, and semi-global aggregation keeps slanted planes slanted.
+    sc = make_scene(kind, seed=2)
+    samples = encode_image(_exposed(sc.right, 0.8, 12), pattern=SamplingPattern("grid", 1, 1))
+    result = stereobudget.decode(sc.left, samples, max_disp=int(np.ceil(sc.max_disp)))
+    assert result.method == "full"
+    assert _good_fraction(result.disparity, sc) >= 0.97
+    # The paper's absolute-difference cost on the tree does not survive it.
+    paper = stereobudget.decode(sc.left, samples, max_disp=int(np.ceil(sc.max_disp)),
+                                params=DecoderParams(full_cost="ad"))
+    assert _good_fraction(paper.disparity, sc) < _good_fraction(result.disparity, sc)
+
+
+def test_unknown_full_cost_is_refused(scene):
+    samples = encode_image(scene.right, pattern=SamplingPattern("grid", 1, 1))
+    with pytest.raises(OptionError, match="full_cost"):
+        stereobudget.decode(scene.left, samples, max_disp=8, params=DecoderParams(full_cost="sad"))

@@ -1,0 +1,202 @@
+"""Census matching cost: the Hamming distance between 5x5 census signatures.
+
+Real camera pairs differ in exposure, gain and noise.  An absolute difference of
+intensities reads such a difference as a mismatch everywhere; the census transform keeps
+only the order of each pixel against its neighbours, which a monotonic change of
+brightness leaves alone (Zabih & Woodfill).  Each pixel's signature is a 24-bit word (one
+bit per neighbour of the 5x5 window: neighbour darker than the centre), and the cost of a
+match is the number of differing bits.
+"""
+
+import numpy as np
+from numba import njit, prange
+
+#: Window radius of the census transform (5 x 5 window, 24 bits).
+CENSUS_RADIUS = 2
+#: Bits in a signature: the most a census cost can be.
+CENSUS_BITS = (2 * CENSUS_RADIUS + 1) ** 2 - 1
+
+
+@njit(cache=True, parallel=True)
+def _census_kernel(gray, radius):
+    h, w = gray.shape
+    out = np.zeros((h, w), np.uint32)
+    for y in prange(h):
+        for x in range(w):
+            centre = gray[y, x]
+            bits = np.uint32(0)
+            for dy in range(-radius, radius + 1):
+                yy = min(max(y + dy, 0), h - 1)
+                for dx in range(-radius, radius + 1):
+                    if dy == 0 and dx == 0:
+                        continue
+                    xx = min(max(x + dx, 0), w - 1)
+                    bits = (bits << np.uint32(1)) | np.uint32(gray[yy, xx] < centre)
+            out[y, x] = bits
+    return out
+
+
+def census_transform(gray: np.ndarray, *, radius: int = CENSUS_RADIUS) -> np.ndarray:
+    """Census signature of every pixel: bit k set where the k-th neighbour is darker.
+
+    Parameters
+    ----------
+    gray : ndarray, (H, W), any real dtype
+        The image (gray levels).
+    radius : int
+        Window radius; the window has ``(2 radius + 1)^2 - 1 <= 32`` neighbours.
+        Neighbours outside the image repeat the border pixel.
+
+    Returns
+    -------
+    ndarray, uint32 (H, W)
+        Neighbours in row-major window order, the first in the highest bit.
+    """
+    if (2 * radius + 1) ** 2 - 1 > 32:
+        raise ValueError(f"a census window of radius {radius} needs more than 32 bits")
+    return _census_kernel(np.ascontiguousarray(gray, np.float32), int(radius))
+
+
+@njit(cache=True, inline="always")
+def popcount32(value):
+    """Number of set bits of a 32-bit word (SWAR: no table, no branch)."""
+    v = np.uint64(value)
+    v = v - ((v >> np.uint64(1)) & np.uint64(0x55555555))
+    v = (v & np.uint64(0x33333333)) + ((v >> np.uint64(2)) & np.uint64(0x33333333))
+    v = (v + (v >> np.uint64(4))) & np.uint64(0x0F0F0F0F)
+    return np.int64(((v * np.uint64(0x01010101)) & np.uint64(0xFFFFFFFF)) >> np.uint64(24))
+
+
+@njit(cache=True, parallel=True)
+def _census_volume_kernel(left_bits, right_bits, min_disp, num_disp):
+    h, w = left_bits.shape
+    out = np.empty((h, w, num_disp), np.uint8)
+    for y in prange(h):
+        for x in range(w):
+            total = 0
+            count = 0
+            for k in range(num_disp):
+                xr = x - (min_disp + k)
+                if 0 <= xr < w:
+                    c = popcount32(left_bits[y, x] ^ right_bits[y, xr])
+                    out[y, x, k] = c
+                    total += c
+                    count += 1
+            # Where x - d leaves the right image there is nothing to match: those layers
+            # get the pixel's mean cost, neither favoured nor ruled out, so the
+            # aggregation's smoothness decides them.
+            neutral = np.uint8((total + count // 2) // count) if count else np.uint8(0)
+            for k in range(num_disp):
+                xr = x - (min_disp + k)
+                if xr < 0 or xr >= w:
+                    out[y, x, k] = neutral
+    return out
+
+
+def census_cost_volume(left_gray: np.ndarray, right_gray: np.ndarray, *, min_disp: int,
+                       num_disp: int) -> np.ndarray:
+    """Census cost of every left pixel at every disparity (the left view's DSI).
+
+    Parameters
+    ----------
+    left_gray, right_gray : ndarray, (H, W)
+        Gray images of the rectified pair.  Left pixel (x, y) matches right (x - d, y).
+    min_disp, num_disp : int
+        Disparities ``min_disp ... min_disp + num_disp - 1``.
+
+    Returns
+    -------
+    ndarray, uint8 (H, W, num_disp)
+        Hamming distances, 0 ... :data:`CENSUS_BITS`.  Layers whose match falls outside
+        the right image hold the mean of the pixel's other layers.
+    """
+    return _census_volume_kernel(census_transform(left_gray), census_transform(right_gray),
+                                 int(min_disp), int(num_disp))
+
+
+def census_cost_volume_reference(left_gray, right_gray, *, min_disp, num_disp):
+    """:func:`census_cost_volume` in plain numpy (the tests hold the kernel to it)."""
+    def signature(gray):
+        gray = np.asarray(gray, np.float32)
+        h, w = gray.shape
+        r = CENSUS_RADIUS
+        padded = np.pad(gray, r, mode="edge")
+        bits = np.zeros((h, w), np.uint64)
+        for dy in range(-r, r + 1):
+            for dx in range(-r, r + 1):
+                if dy or dx:
+                    neighbour = padded[r + dy:r + dy + h, r + dx:r + dx + w]
+                    bits = (bits << np.uint64(1)) | (neighbour < gray).astype(np.uint64)
+        return bits
+
+    lb, rb = signature(left_gray), signature(right_gray)
+    h, w = lb.shape
+    out = np.zeros((h, w, num_disp), np.int64)
+    inside = np.zeros((h, w, num_disp), bool)
+    for k in range(num_disp):
+        d = min_disp + k
+        xs = np.arange(w) - d
+        ok = (xs >= 0) & (xs < w)
+        diff = lb[:, ok] ^ rb[:, xs[ok]]
+        out[:, ok, k] = np.array([bin(int(v)).count("1") for v in diff.ravel()]).reshape(diff.shape)
+        inside[:, ok, k] = True
+    count = inside.sum(axis=2)
+    neutral = (np.where(inside, out, 0).sum(axis=2) + count // 2) // np.maximum(count, 1)
+    out = np.where(inside, out, neutral[:, :, None])
+    return out.astype(np.uint8)
+
+
+@njit(cache=True, parallel=True)
+def _spaced_census_kernel(gray, spacing_x, spacing_y):
+    h, w = gray.shape
+    out = np.zeros((h, w), np.uint8)
+    for y in prange(h):
+        for x in range(w):
+            centre = gray[y, x]
+            bits = 0
+            for dy in (-1, 0, 1):
+                yy = min(max(y + dy * spacing_y, 0), h - 1)
+                for dx in (-1, 0, 1):
+                    if dy == 0 and dx == 0:
+                        continue
+                    xx = min(max(x + dx * spacing_x, 0), w - 1)
+                    bits = (bits << 1) | (1 if gray[yy, xx] < centre else 0)
+            out[y, x] = bits
+    return out
+
+
+def spaced_census(gray: np.ndarray, *, spacing_x: int, spacing_y: int) -> np.ndarray:
+    """Census of every pixel against its 8 neighbours ``spacing`` pixels away.
+
+    With the spacing of a sample grid this is, at each pixel of I1, what
+    :func:`lattice_census` is at each sample of I2: the two can be compared for every
+    (sample, disparity) pair of the sparse DSI.
+
+    Parameters
+    ----------
+    gray : ndarray, (H, W)
+    spacing_x, spacing_y : int
+        Neighbour offsets; neighbours outside the image repeat the border.
+
+    Returns
+    -------
+    ndarray, uint8 (H, W)
+        Neighbours in row-major order, the first in the highest bit.
+    """
+    return _spaced_census_kernel(np.ascontiguousarray(gray, np.float32), int(spacing_x), int(spacing_y))
+
+
+def lattice_census(lattice_gray: np.ndarray) -> np.ndarray:
+    """Census of every sample of a grid against its 8 grid neighbours.
+
+    Parameters
+    ----------
+    lattice_gray : ndarray, (rows, cols)
+        The samples' gray values on their grid (``I2[oy::sy, ox::sx]``).
+
+    Returns
+    -------
+    ndarray, int64 (rows * cols,)
+        8-bit codes in the bit order of :func:`spaced_census`, row-major over the grid.
+    """
+    return spaced_census(lattice_gray, spacing_x=1, spacing_y=1).astype(np.int64).ravel()
