@@ -124,7 +124,8 @@ def coded_right(codec, right, budget):
         return _best_under(lambda q: imagecodecs.avif_encode(right, level=q, speed=6), imagecodecs.avif_decode,
                            budget, list(range(0, 101)))
     if codec == "WebP":
-        return _best_under(lambda q: imagecodecs.webp_encode(right, level=q), imagecodecs.webp_decode,
+        # This imagecodecs build codes losslessly unless told otherwise.
+        return _best_under(lambda q: imagecodecs.webp_encode(right, level=q, lossless=False), imagecodecs.webp_decode,
                            budget, list(range(0, 101)))
     if codec == "JXL":
         # Distance falls as quality rises; bisection wants quality ascending.

@@ -200,3 +200,38 @@ def lattice_census(lattice_gray: np.ndarray) -> np.ndarray:
         8-bit codes in the bit order of :func:`spaced_census`, row-major over the grid.
     """
     return spaced_census(lattice_gray, spacing_x=1, spacing_y=1).astype(np.int64).ravel()
+
+
+@njit(cache=True, parallel=True)
+def _mix_census_kernel(volume, left_codes, right_codes, min_disp, weight, scale):
+    h, w, nd = volume.shape
+    for y in prange(h):
+        for x in range(w):
+            for k in range(nd):
+                xr = min(max(x - (min_disp + k), 0), w - 1)
+                bits = popcount32(np.uint32(left_codes[y, x]) ^ np.uint32(right_codes[y, xr]))
+                volume[y, x, k] = volume[y, x, k] * scale + weight * np.float32(bits)
+
+
+def mix_spaced_census(volume: np.ndarray, left_codes: np.ndarray, right_codes: np.ndarray, *, min_disp: int,
+                      volume_scale: float, census_weight: float) -> np.ndarray:
+    """``volume * volume_scale + census_weight * bits`` in place, ``bits`` the differing bits
+    of two code images (:func:`spaced_census`) at each disparity.
+
+    Parameters
+    ----------
+    volume : ndarray, float32 (H, W, D), C-contiguous
+        Left-view cost; layer ``k`` is disparity ``min_disp + k``.
+    left_codes, right_codes : ndarray, uint8 (H, W)
+        Codes of the two views; right columns past the border repeat the border.
+    min_disp : int
+    volume_scale, census_weight : float
+
+    Returns
+    -------
+    ndarray
+        ``volume``.
+    """
+    _mix_census_kernel(volume, left_codes, right_codes, int(min_disp), np.float32(census_weight),
+                       np.float32(volume_scale))
+    return volume

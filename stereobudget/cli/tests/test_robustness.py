@@ -484,8 +484,8 @@ def test_estimate_counts_volumes_and_grids():
     v = 100 * 200 * 48 * 4
     pixels = 100 * 200
     full = limits.estimate_decode_memory(100, 200, 48, "full")
-    assert full >= 2 * v
-    assert limits.estimate_decode_memory(100, 200, 48, "downsample") == full
+    assert full >= 2.25 * v                  # census volume + the two sums of the semi-global paths
+    assert 2 * v <= limits.estimate_decode_memory(100, 200, 48, "downsample") < full
     sparse = limits.estimate_decode_memory(100, 200, 48, "sparse", stride_x=5, stride_y=5)
     hybrid = limits.estimate_decode_memory(100, 200, 48, "hybrid", stride_x=5, stride_y=5)
     assert hybrid >= sparse and hybrid >= 3 * v

@@ -252,3 +252,13 @@ def test_unknown_full_cost_is_refused(scene):
     samples = encode_image(scene.right, pattern=SamplingPattern("grid", 1, 1))
     with pytest.raises(OptionError, match="full_cost"):
         stereobudget.decode(scene.left, samples, max_disp=8, params=DecoderParams(full_cost="sad"))
+
+
+@pytest.mark.parametrize("aggregation", ["semiglobal", "semiglobal_census"])
+def test_hybrid_on_semiglobal_paths_recovers_a_slanted_scene(aggregation):
+    sc = make_scene("slanted", seed=3)
+    samples = encode_image(_exposed(sc.right, 0.9, 8), pattern=SamplingPattern("grid", 5, 5))
+    result = stereobudget.decode(sc.left, samples, max_disp=int(np.ceil(sc.max_disp)), method="hybrid",
+                                 params=DecoderParams(hybrid_aggregation=aggregation))
+    assert result.disparity.dtype == np.float32 and np.isfinite(result.disparity).all()
+    assert _good_fraction(result.disparity, sc) >= 0.93
