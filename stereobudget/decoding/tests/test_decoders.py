@@ -113,8 +113,11 @@ def test_timings_and_summary_are_reported(scene):
     samples = encode_image(scene.right, pattern=SamplingPattern("grid", 5, 5))
     result = stereobudget.decode(scene.left, samples, max_disp=int(np.ceil(scene.max_disp)), method="hybrid",
                                  params=DecoderParams())
-    # The winners are taken inside the aggregation walks: there is no separate "wta" stage.
-    assert {"tree", "jbf_fill", "interpolate", "cost", "aggregate", "refine"} == set(result.timings) - {"prepare"}
+    # The winners are taken inside the aggregation: there is no separate "wta" stage.
+    assert {"jbf_fill", "interpolate", "cost", "aggregate", "refine"} == set(result.timings) - {"prepare"}
+    tree_route = stereobudget.decode(scene.left, samples, max_disp=int(np.ceil(scene.max_disp)), method="hybrid",
+                                     params=DecoderParams(hybrid_aggregation="tree"))
+    assert {"tree", "jbf_fill", "interpolate", "cost", "aggregate", "refine"} == set(tree_route.timings) - {"prepare"}
     s = result.summary()
     assert s["method"] == "hybrid" and s["params"]["sigma_r"] == 15.0
 
