@@ -199,7 +199,7 @@ class Pair:
     stem: str
     left: str | None
     samples: str | None
-    max_disp: int | None = None
+    max_disp: int | str | None = None
     min_disp: int | None = None
     problem: str | None = None
 
@@ -239,10 +239,12 @@ def pair_by_stem(lefts: list[str], samples: list[str]) -> list[Pair]:
     return pairs
 
 
-def _manifest_int(value: str, column: str, where: str) -> int | None:
+def _manifest_int(value: str, column: str, where: str, *, auto: bool = False) -> int | str | None:
     value = (value or "").strip()
     if not value:
         return None
+    if auto and value.lower() == "auto":
+        return "auto"
     try:
         return int(value)
     except ValueError:
@@ -252,7 +254,8 @@ def _manifest_int(value: str, column: str, where: str) -> int | None:
 def read_manifest(path: str) -> list[Pair]:
     """Read a CSV manifest of decoding pairs.
 
-    Columns ``left,samples[,max_disp[,min_disp]]``; a first row naming the columns
+    Columns ``left,samples[,max_disp[,min_disp]]`` (``max_disp`` may be ``auto``: estimated,
+    as an empty cell); a first row naming the columns
     (``left,samples,...`` in any order) is optional.  Relative paths are relative to the
     manifest's folder; empty lines and lines starting with ``#`` are ignored.
 
@@ -298,7 +301,7 @@ def read_manifest(path: str) -> list[Pair]:
         samples = (str(base / record["samples"]) if not os.path.isabs(record["samples"])
                    else record["samples"])
         pairs.append(Pair(stem=Path(left).stem, left=left, samples=samples,
-                          max_disp=_manifest_int(record.get("max_disp", ""), "max_disp", where),
+                          max_disp=_manifest_int(record.get("max_disp", ""), "max_disp", where, auto=True),
                           min_disp=_manifest_int(record.get("min_disp", ""), "min_disp", where)))
     if not pairs:
         raise OptionError("the manifest lists no pair", path=str(path))
@@ -465,7 +468,12 @@ class DecodeJob:
     disparity, preview, right : str or None
         Outputs: disparity map (format by extension), colour preview PNG, recovered right
         image Î2 (PNG/TIFF, input's channels and bit depth; ``-`` = standard output).
-    max_disp, min_disp : int
+    max_disp : int, "auto" or None
+        Largest disparity searched; None or ``"auto"``: estimated from the pair
+        (:func:`stereobudget.decoding.estimate_disparity_range`).
+    min_disp : int or None
+        Smallest disparity searched; None: the estimate's when ``max_disp`` is estimated,
+        else 0.
     method : str or None
         Decoder (None: the library default).
     overwrite, batch : bool
@@ -483,8 +491,8 @@ class DecodeJob:
     disparity: str | None = None
     preview: str | None = None
     right: str | None = None
-    max_disp: int | None = None
-    min_disp: int = 0
+    max_disp: int | str | None = None
+    min_disp: int | None = None
     method: str | None = None
     overwrite: bool = False
     batch: bool = False
@@ -580,9 +588,6 @@ def decode_file(job: DecodeJob) -> dict:
     start = time.perf_counter()
     if job.problem:
         raise OptionError(job.problem, path=job.label)
-    if job.max_disp is None:
-        raise OptionError("no --max-disp for this pair (give --max-disp or a max_disp column)",
-                          path=job.label)
     if job.left == STDIO and job.samples == STDIO:
         raise OptionError("only one of LEFT and SAMPLES can be '-' (standard input)")
     outputs = job.outputs
@@ -607,6 +612,8 @@ def decode_file(job: DecodeJob) -> dict:
     timings["read"] = time.perf_counter() - t
 
     # The decoder (numba) loads only once both inputs have been read successfully.
+    import math
+
     import numpy as np
 
     from ..decoding import _decoders as decoders
@@ -615,15 +622,27 @@ def decode_file(job: DecodeJob) -> dict:
     _limit_numba_threads(job.threads)
     t = time.perf_counter()
     left_name, samples_name = display_name(job.left), display_name(job.samples)
+    from ..decoding import _checks as checks
+    from ..decoding import _disprange as disprange
+    auto = disprange.is_auto(job.max_disp)
     try:
-        decoders.check_inputs(left, samples, min_disp=job.min_disp, max_disp=job.max_disp)
+        # Sizes and types first (the estimate needs them to agree), then the range.
+        decoders.check_inputs(left, samples, min_disp=0, max_disp=1)
+        timings["validate"] = time.perf_counter() - t
+        t = time.perf_counter()
+        min_disp, max_disp, estimate = disprange.resolve_range(left, samples, max_disp=job.max_disp,
+                                                               min_disp=job.min_disp)
+        timings["estimate_range"] = time.perf_counter() - t
+        decoders.check_inputs(left, samples, min_disp=min_disp, max_disp=max_disp)
     except (MismatchError, OptionError) as exc:
         raise type(exc)(f"{exc.message} ({samples_name})", path=left_name) from None
-    timings["validate"] = time.perf_counter() - t
+    if auto:
+        log.info("%s: disparity range %d..%d (estimated from %d matches in %.2f s)", left_name, min_disp,
+                 max_disp, estimate.votes, estimate.seconds)
 
     method = job.method or DEFAULT_METHOD
     try:
-        result = decoders.decode(left, samples, max_disp=job.max_disp, min_disp=job.min_disp, method=method,
+        result = decoders.decode(left, samples, max_disp=max_disp, min_disp=min_disp, method=method,
                                  max_memory=job.max_memory)
     except MemoryLimitError as exc:
         raise MemoryLimitError(exc.message, path=left_name) from None
@@ -643,12 +662,18 @@ def decode_file(job: DecodeJob) -> dict:
     if job.disparity is not None:
         dispio.write_disparity(job.disparity, disparity, overwrite=overwrite)
     if job.preview is not None:
-        dispio.write_preview(job.preview, disparity, min_disp=job.min_disp, max_disp=job.max_disp,
+        dispio.write_preview(job.preview, disparity, min_disp=min_disp, max_disp=max_disp,
                              overwrite=overwrite)
     if right_image is not None:
         imageio.write_image(job.right, right_image, channel_order="rgb" if right_image.ndim == 3 else "gray",
                             overwrite=overwrite)
     timings["write"] = time.perf_counter() - t
+
+    t = time.perf_counter()
+    psnr = checks.psnr_at_samples(left, disparity, samples)
+    warnings = checks.setup_warnings(estimate) + checks.result_warnings(
+        disparity, min_disp=min_disp, max_disp=max_disp, psnr=psnr, auto_range=auto)
+    timings["checks"] = time.perf_counter() - t
     timings["total"] = time.perf_counter() - start
 
     valid = np.isfinite(disparity)
@@ -659,7 +684,10 @@ def decode_file(job: DecodeJob) -> dict:
         "sample_count": int(samples.values.shape[0]), "epsilon": samples.epsilon,
         "pattern": samples.pattern.kind, "stride_x": samples.pattern.stride_x,
         "stride_y": samples.pattern.stride_y,
-        "method": result.method, "min_disp": int(job.min_disp), "max_disp": int(job.max_disp),
+        "method": result.method, "min_disp": int(min_disp), "max_disp": int(max_disp),
+        "range_source": "estimated" if auto else "given", "range_estimate": estimate.summary(),
+        "psnr_at_samples": psnr if math.isfinite(psnr) else None,
+        "warnings": [w.as_dict() for w in warnings],
         "disparity_range": ([float(disparity[valid].min()), float(disparity[valid].max())]
                             if valid.any() else None),
         "valid_fraction": float(valid.mean()),

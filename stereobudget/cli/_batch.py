@@ -40,9 +40,11 @@ def _show_progress() -> bool:
     return tty and log.getEffectiveLevel() <= logging.WARNING
 
 
-def run_batch(jobs: list, fn, *, workers: int | None, scheduler: str | None, as_json: bool) -> None:
+def run_batch(jobs: list, fn, *, workers: int | None, scheduler: str | None, as_json: bool,
+              on_result=None) -> None:
     """Run ``jobs`` with ``fn``; print JSON lines / failures; exit 1 if any file failed.
 
+    ``on_result(item)`` is called for every file done (``ok``), e.g. to print its warnings.
     Returns normally only when every file is ``ok`` or ``skipped``.
     """
     from stereobudget.batch import run_jobs
@@ -60,6 +62,8 @@ def run_batch(jobs: list, fn, *, workers: int | None, scheduler: str | None, as_
                     log.error("error: %s", item.get("error"))
                 elif status == "skipped":
                     log.info("%s: up to date, skipped", item.get("input") or item.get("left"))
+                elif on_result is not None:
+                    on_result(item)
                 if as_json:
                     common.emit_json(item)
                     sys.stdout.flush()
