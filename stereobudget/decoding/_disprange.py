@@ -110,91 +110,93 @@ class RangeEstimate:
 
 @njit(cache=True, parallel=True)
 def _zncc_search(lattice, image, ys, xs, d_first, d_count, d_step, shift, radius, best, best_d, second):
-    """Best ZNCC per lattice point over disparities ``d_first + i d_step`` at vertical ``shift``.
+    """Best ZNCC per lattice point over disparities ``d_first + k d_step`` at vertical ``shift``.
 
     ``lattice`` (R, C) holds the samples' gray values at rows ``ys`` and columns ``xs`` of
     the right view; ``image`` (H, W) is I1's gray.  For lattice point (r, c) the window is
     the points ``r +- radius, c +- radius``, compared with I1 at ``(ys + shift, xs + d)``.
     ``best``, ``best_d`` and ``second`` (the best score more than two steps from
     ``best_d``) are updated in place; points whose window leaves either image keep theirs.
+    Per lattice row, the sums over the window's rows are made for every disparity at
+    once (I1's pixels at consecutive d are consecutive in memory), then summed over the
+    window's columns, so the inner loops run along d.
     """
     rows, cols = lattice.shape
     height, width = image.shape
     n = (2 * radius + 1) ** 2
     for r in prange(radius, rows - radius):
-        top = ys[r - radius] + shift
-        bottom = ys[r + radius] + shift
-        if top < 0 or bottom >= height:
+        if ys[r - radius] + shift < 0 or ys[r + radius] + shift >= height:
             continue
-        sum_a = np.empty(cols, np.float64)
-        sum_aa = np.empty(cols, np.float64)
-        sum_ga = np.empty(cols, np.float64)
-        # The window statistics of the lattice itself do not depend on d.
-        sum_g = np.zeros(cols, np.float64)
-        sum_gg = np.zeros(cols, np.float64)
+        col_a = np.zeros((cols, d_count), np.float32)
+        col_aa = np.zeros((cols, d_count), np.float32)
+        col_ga = np.zeros((cols, d_count), np.float32)
+        first_k = np.empty(cols, np.int64)
+        last_k = np.empty(cols, np.int64)
+        col_g = np.zeros(cols, np.float64)
+        col_gg = np.zeros(cols, np.float64)
         for c in range(cols):
-            s = 0.0
-            ss = 0.0
+            # Disparities at which column c lands inside I1.
+            lo = -(-(-xs[c] - d_first) // d_step)
+            hi = (width - 1 - xs[c] - d_first) // d_step
+            lo = max(lo, 0)
+            hi = min(hi, d_count - 1)
+            first_k[c] = lo
+            last_k[c] = hi
+            x0 = xs[c] + d_first
             for i in range(-radius, radius + 1):
+                row = image[ys[r + i] + shift]
                 g = lattice[r + i, c]
-                s += g
-                ss += g * g
-            sum_g[c] = s
-            sum_gg[c] = ss
-        win_g = np.zeros(cols, np.float64)
-        var_g = np.zeros(cols, np.float64)
+                col_g[c] += g
+                col_gg[c] += g * g
+                for k in range(lo, hi + 1):
+                    a = row[x0 + k * d_step]
+                    col_a[c, k] += a
+                    col_aa[c, k] += a * a
+                    col_ga[c, k] += g * a
+        win_a = np.empty(d_count, np.float64)
+        win_aa = np.empty(d_count, np.float64)
+        win_ga = np.empty(d_count, np.float64)
         for c in range(radius, cols - radius):
-            s = 0.0
-            ss = 0.0
-            for j in range(-radius, radius + 1):
-                s += sum_g[c + j]
-                ss += sum_gg[c + j]
-            win_g[c] = s
-            var_g[c] = ss - s * s / n
-        for k in range(d_count):
-            d = d_first + k * d_step
-            # Columns whose whole window lands inside I1 at this d.
-            c_lo = radius
-            while c_lo < cols - radius and xs[c_lo - radius] + d < 0:
-                c_lo += 1
-            c_hi = cols - radius - 1
-            while c_hi >= c_lo and xs[c_hi + radius] + d >= width:
-                c_hi -= 1
-            if c_hi < c_lo:
+            lo = first_k[c - radius]
+            hi = last_k[c + radius]
+            if hi < lo:
                 continue
-            for c in range(c_lo - radius, c_hi + radius + 1):
-                x = xs[c] + d
-                a_s = 0.0
-                aa_s = 0.0
-                ga_s = 0.0
-                for i in range(-radius, radius + 1):
-                    a = image[ys[r + i] + shift, x]
-                    a_s += a
-                    aa_s += a * a
-                    ga_s += a * lattice[r + i, c]
-                sum_a[c] = a_s
-                sum_aa[c] = aa_s
-                sum_ga[c] = ga_s
-            for c in range(c_lo, c_hi + 1):
-                a_s = 0.0
-                aa_s = 0.0
-                ga_s = 0.0
-                for j in range(-radius, radius + 1):
-                    a_s += sum_a[c + j]
-                    aa_s += sum_aa[c + j]
-                    ga_s += sum_ga[c + j]
-                var_a = aa_s - a_s * a_s / n
-                denominator = var_a * var_g[c]
-                if denominator <= 1e-9:
+            sum_g = 0.0
+            sum_gg = 0.0
+            for j in range(-radius, radius + 1):
+                sum_g += col_g[c + j]
+                sum_gg += col_gg[c + j]
+            var_g = sum_gg - sum_g * sum_g / n
+            if var_g <= 1e-6:
+                continue
+            for k in range(lo, hi + 1):
+                win_a[k] = 0.0
+                win_aa[k] = 0.0
+                win_ga[k] = 0.0
+            for j in range(-radius, radius + 1):
+                for k in range(lo, hi + 1):
+                    win_a[k] += col_a[c + j, k]
+                    win_aa[k] += col_aa[c + j, k]
+                    win_ga[k] += col_ga[c + j, k]
+            b = best[r, c]
+            bd = best_d[r, c]
+            sc = second[r, c]
+            for k in range(lo, hi + 1):
+                var_a = win_aa[k] - win_a[k] * win_a[k] / n
+                if var_a <= 1e-6:
                     continue
-                score = (ga_s - win_g[c] * a_s / n) / math.sqrt(denominator)
-                if score > best[r, c]:
-                    if abs(d - best_d[r, c]) > 2 * d_step:
-                        second[r, c] = best[r, c]
-                    best[r, c] = score
-                    best_d[r, c] = d
-                elif score > second[r, c] and abs(d - best_d[r, c]) > 2 * d_step:
-                    second[r, c] = score
+                score = (win_ga[k] - sum_g * win_a[k] / n) / math.sqrt(var_a * var_g)
+                d = d_first + k * d_step
+                if score > b:
+                    if abs(d - bd) > 2 * d_step:
+                        sc = b
+                    b = score
+                    bd = d
+                elif score > sc and abs(d - bd) > 2 * d_step:
+                    sc = score
+            best[r, c] = b
+            best_d[r, c] = bd
+            second[r, c] = sc
 
 
 def _gray(image: np.ndarray) -> np.ndarray:
