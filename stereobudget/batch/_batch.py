@@ -484,6 +484,8 @@ class DecodeJob:
         Why this pair cannot be decoded (set by the pairing step).
     max_memory : int or None
         Memory limit of the decode in bytes (None: 75 % of the available memory).
+    disparity_format : {"pfm", "png"} or None
+        Format of a disparity map written to standard output (``disparity="-"``; None: PFM).
     """
 
     left: str | None
@@ -499,6 +501,7 @@ class DecodeJob:
     threads: int | None = None
     problem: str | None = None
     max_memory: int | None = None
+    disparity_format: str | None = None
 
     @property
     def label(self) -> str:
@@ -557,10 +560,12 @@ def _check_output_formats(job: DecodeJob) -> None:
     def ext(path):
         return Path(path).suffix.lower()
 
+    if sum(path == STDIO for path in job.outputs.values()) > 1:
+        raise OptionError("only one output can go to standard output ('-')")
     if job.disparity is not None:
         if job.disparity == STDIO:
-            raise OutputError("a disparity map cannot go to standard output; give a file name", path="<stdout>")
-        if ext(job.disparity) not in DISPARITY_EXTENSIONS:
+            pass   # the stream's format is job.disparity_format (PFM unless png)
+        elif ext(job.disparity) not in DISPARITY_EXTENSIONS:
             raise OutputError(f"unknown disparity format {ext(job.disparity) or '(no extension)'!r}; "
                               f"use one of {', '.join(DISPARITY_EXTENSIONS)}", path=job.disparity)
     if job.preview is not None and (job.preview == STDIO or ext(job.preview) != ".png"):
@@ -660,7 +665,8 @@ def decode_file(job: DecodeJob) -> dict:
 
     t = time.perf_counter()
     if job.disparity is not None:
-        dispio.write_disparity(job.disparity, disparity, overwrite=overwrite)
+        dispio.write_disparity(job.disparity, disparity, overwrite=overwrite,
+                               stream_format=(job.disparity_format or "pfm") if job.disparity == STDIO else None)
     if job.preview is not None:
         dispio.write_preview(job.preview, disparity, min_disp=min_disp, max_disp=max_disp,
                              overwrite=overwrite)

@@ -98,7 +98,10 @@ def _pairs_from_arguments(inputs, left_dir, samples_dir, manifest):
 @click.option("--method", type=click.Choice(METHODS), default=None,
               help=f"Decoder.  [default: {DEFAULT_METHOD}]")
 @click.option("--disparity", metavar="OUT", default=None,
-              help="Disparity map: .pfm, .tif/.tiff (float32), .png (16-bit x256) or .npy.")
+              help="Disparity map: .pfm, .tif/.tiff (float32), .png (16-bit x256) or .npy; '-' = stdout "
+                   "(PFM, or PNG with --format png).")
+@click.option("--format", "disparity_format", type=click.Choice(("pfm", "png")), default=None,
+              help="Format of --disparity - on standard output.  [default: pfm]")
 @click.option("--preview", metavar="OUT.png", default=None, help="Colour preview of the disparity (PNG).")
 @click.option("--right", metavar="OUT", default=None,
               help="Recovered right image (PNG/TIFF, the input's channels and bit depth; '-' = stdout).")
@@ -112,7 +115,7 @@ def _pairs_from_arguments(inputs, left_dir, samples_dir, manifest):
 @common.version_option
 @common.handle_errors
 def decode_command(inputs, left_dir, samples_dir, manifest, max_disp, min_disp, method, disparity,
-                   preview, right, max_memory, jobs, scheduler, overwrite, as_json):
+                   disparity_format, preview, right, max_memory, jobs, scheduler, overwrite, as_json):
     """Recover the disparity of LEFT from the right camera's SAMPLES (.sbs).
 
     One of LEFT and SAMPLES may be '-' (standard input).  LEFT and SAMPLES may also be
@@ -133,6 +136,7 @@ def decode_command(inputs, left_dir, samples_dir, manifest, max_disp, min_disp, 
       sb-decode left.png right.sbs --disparity d.pfm -v        # range estimated
       sb-decode left.png right.sbs --max-disp 60 --disparity d.pfm --preview d.png
       sb-decode left.png right.sbs --max-disp 60 --disparity d.tif --right r.png --json
+      sb-decode left.png right.sbs --disparity - --format png > d.png
       ssh cam sb-encode - -o - < r.png | sb-decode left.png - --max-disp 60 --disparity d.pfm
       sb-decode --left-dir L --samples-dir S --max-disp 60 \\
           --disparity 'D/{stem}.pfm' --right 'R/{stem}.png' -j 2
@@ -162,6 +166,9 @@ def decode_command(inputs, left_dir, samples_dir, manifest, max_disp, min_disp, 
             raise OptionError("'-' (standard output) works with a single pair only")
     if as_json and "-" in templates.values():
         raise OptionError("--json cannot be combined with an output on '-' (stdout carries the image)")
+    if disparity_format is not None and disparity != "-":
+        raise OptionError("--format sets the format of --disparity - (standard output); a file's format "
+                          "follows its extension")
     if scheduler is not None and not batch:
         log.info("--scheduler ignored for a single pair")
 
@@ -175,7 +182,8 @@ def decode_command(inputs, left_dir, samples_dir, manifest, max_disp, min_disp, 
         job_list.append(DecodeJob(
             left=pair.left, samples=pair.samples, max_disp=pair_max,
             min_disp=pair.min_disp if pair.min_disp is not None else min_disp, method=method,
-            overwrite=overwrite, batch=batch, problem=pair.problem, max_memory=max_memory, **outputs))
+            overwrite=overwrite, batch=batch, problem=pair.problem, max_memory=max_memory,
+            disparity_format=disparity_format, **outputs))
     if not batch:
         summary = decode_file(job_list[0])
         log.info("%s + %s -> %s: %dx%d, epsilon %.2f %%, %s, disparity %d..%d (%s), %.2f s", summary["left"],

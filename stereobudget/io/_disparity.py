@@ -37,6 +37,8 @@ from ..errors import ImageReadError, OutputError
 logger = logging.getLogger(__name__)
 
 DISPARITY_EXTENSIONS = (".pfm", ".tif", ".tiff", ".png", ".npy")
+#: Formats a disparity map can take on standard output (``-``), the first the default.
+STREAM_FORMATS = ("pfm", "png")
 
 PNG_SCALE = 256.0
 PNG_MAX_DISPARITY = 65535 / PNG_SCALE  # 255.996...
@@ -200,26 +202,37 @@ def _decode_npy(path: str) -> np.ndarray:
 
 # --------------------------------------------------------------------------- public API
 
-def write_disparity(path, disparity, *, overwrite: bool = False) -> None:
+def write_disparity(path, disparity, *, overwrite: bool = False, stream_format: str | None = None) -> None:
     """Write a disparity map atomically in the format given by the extension of ``path``.
 
     Parameters
     ----------
     path : str or Path
         Output file; extension ``.pfm``, ``.tif``/``.tiff``, ``.png`` (16-bit, x256) or ``.npy``.
+        ``-`` writes to standard output in ``stream_format``.
     disparity : ndarray, (H, W), float
         Disparity of the left view; NaN (or any non-finite value) marks invalid pixels.
     overwrite : bool
         Replace an existing file.  Without it an existing ``path`` raises :class:`OutputError`.
+    stream_format : {"pfm", "png"}, optional
+        Format on standard output (default ``"pfm"``); also a file's format when given.
 
     Raises
     ------
     OutputError
-        Unknown extension, existing file without ``overwrite``, or the file cannot be written.
+        Unknown extension, existing file without ``overwrite``, standard output that is a
+        terminal, or the file cannot be written.
     ValueError
         ``disparity`` is not a non-empty numeric 2-D array.
     """
-    ext = _extension(path)
+    if stream_format is not None or str(path) == "-":
+        fmt = (stream_format or STREAM_FORMATS[0]).lower()
+        if fmt not in STREAM_FORMATS:
+            raise OutputError(f"unknown disparity stream format {fmt!r}; use {' or '.join(STREAM_FORMATS)}",
+                              path="<stdout>" if str(path) == "-" else str(path))
+        ext = "." + fmt
+    else:
+        ext = _extension(path)
     if ext not in DISPARITY_EXTENSIONS:
         raise OutputError(f"unknown disparity format {ext or '(no extension)'!r}; "
                           f"use one of {', '.join(DISPARITY_EXTENSIONS)}", path=str(path))
@@ -229,7 +242,7 @@ def write_disparity(path, disparity, *, overwrite: bool = False) -> None:
     elif ext in (".tif", ".tiff"):
         payload = _encode_tiff(d)
     elif ext == ".png":
-        payload = _encode_png16(d, str(path))
+        payload = _encode_png16(d, "<stdout>" if str(path) == "-" else str(path))
     else:
         payload = _encode_npy(d)
     write_output_bytes(path, payload, overwrite=overwrite)
