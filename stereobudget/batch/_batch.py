@@ -634,6 +634,11 @@ def decode_file(job: DecodeJob) -> dict:
         # Sizes and types first (the estimate needs them to agree), then the range.
         decoders.check_inputs(left, samples, min_disp=0, max_disp=1)
         timings["validate"] = time.perf_counter() - t
+        if not job.batch:
+            # After an install or upgrade numba compiles for minutes: say so before the
+            # first kernel runs (a batch says it once, in the command).
+            from .._kernels._first_run import announce_first_compile
+            announce_first_compile()
         t = time.perf_counter()
         min_disp, max_disp, estimate = disprange.resolve_range(left, samples, max_disp=job.max_disp,
                                                                min_disp=job.min_disp)

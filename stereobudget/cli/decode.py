@@ -195,6 +195,10 @@ def decode_command(inputs, left_dir, samples_dir, manifest, max_disp, min_disp, 
             common.emit_json(summary)
         return
     check_distinct_outputs(job_list, key=lambda job: job.outputs.values())
+    # After an install or upgrade numba compiles for minutes: say so once, here (a single
+    # pair says it in decode_file, once its inputs have been read and checked).
+    from stereobudget._kernels._first_run import announce_first_compile
+    announce_first_compile()
     _batch.run_batch(job_list, decode_job, workers=jobs, scheduler=scheduler, as_json=as_json,
                      on_result=lambda item: report_warnings(item, label=item.get("left")))
 
