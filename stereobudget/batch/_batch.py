@@ -15,11 +15,12 @@ The CLI commands are thin; everything a batch needs lives here so that other pro
 * :func:`run_jobs` runs jobs in-process (1 job), in a local process pool, or on a
   dask.distributed cluster, and yields the result dicts as they complete.
 
-Up-to-date rule (as ``make`` does): in a batch, a job whose outputs all exist and are at
-least as new as all its inputs is skipped; if any output is missing or older than an
-input, the job is redone and its outputs are replaced.  ``overwrite=True`` redoes every
-job.  Outputs are always written atomically, so an interrupted batch leaves complete
-outputs (skipped on the next run) and no partial ones.
+Up-to-date rule: in a batch, each output gets a record of what made it (tool version,
+inputs' paths, sizes and times, options, decoder parameters: :mod:`stereobudget.batch._recipes`);
+a job whose outputs all exist with the record the job would write is skipped, any other
+is redone (its result says why, under ``redone``) and its outputs are replaced.
+``overwrite=True`` redoes every job.  Outputs are always written atomically, so an
+interrupted batch leaves complete outputs and no partial ones.
 
 This module imports neither numba nor OpenCV: the camera-side ``sb-encode`` uses it.
 """
@@ -38,9 +39,11 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Callable, Iterable, Iterator
 
-from ..io._atomic import STDIO, check_output_path, display_name, redeliver_swallowed_interrupts
+from ..io._atomic import (STDIO, check_output_path, display_name, interrupts_deferred,
+                          redeliver_swallowed_interrupts)
 from ..errors import MemoryLimitError, OptionError, OutputError, StereoBudgetError
 from ..decoding._methods import DEFAULT_METHOD
+from ._recipes import make_recipe, recipe_difference, write_recipes
 
 log = logging.getLogger("stereobudget")
 
@@ -435,14 +438,23 @@ def encode_job(job: EncodeJob) -> dict:
               "output": "<stdout>" if job.output == STDIO else job.output}
     _in_job(True)
     try:
-        if job.batch and not job.overwrite and outputs_up_to_date([job.output], [job.source]):
-            result["status"] = "skipped"
-            return result
+        recipe = _encode_recipe(job) if job.batch else None
+        if recipe is not None:
+            reason = recipe_difference([job.output], recipe)
+            if reason is None and not job.overwrite:
+                result.update(status="skipped", reason="up to date")
+                return result
+            if os.path.exists(job.output):
+                result["redone"] = "--overwrite" if reason is None else reason
         from ..io._samples import encode_file
         overwrite = _prepare_outputs([job.output], [job.source], overwrite=job.overwrite,
                                      make_dirs=job.batch)
-        report = encode_file(job.source, job.output, pattern=job.pattern, raw_size=job.raw_size,
-                             pix_fmt=job.pix_fmt, overwrite=overwrite)
+        # Output and record together (see decode_file); an encode takes milliseconds.
+        with interrupts_deferred():
+            report = encode_file(job.source, job.output, pattern=job.pattern, raw_size=job.raw_size,
+                                 pix_fmt=job.pix_fmt, overwrite=overwrite)
+            if recipe is not None:
+                write_recipes([job.output], recipe)
         result.update(report.as_dict())
         result["input"] = report.source
     except (StereoBudgetError, MemoryError) as exc:
@@ -576,11 +588,12 @@ def _check_output_formats(job: DecodeJob) -> None:
                           "use .png, .tif or .tiff", path=job.right)
 
 
-def decode_file(job: DecodeJob) -> dict:
+def decode_file(job: DecodeJob, *, recipe: dict | None = None) -> dict:
     """Decode one pair and write its outputs; raises on any problem.
 
     This is the single-file path of ``sb-decode`` (errors keep their class and exit
-    code); batches use :func:`decode_job`, which wraps it.
+    code); batches use :func:`decode_job`, which wraps it.  ``recipe``
+    (:func:`stereobudget.batch._recipes.make_recipe`) is recorded beside the outputs.
 
     Returns
     -------
@@ -669,22 +682,27 @@ def decode_file(job: DecodeJob) -> dict:
         timings["right"] = time.perf_counter() - t
 
     t = time.perf_counter()
-    if job.disparity is not None:
-        dispio.write_disparity(job.disparity, disparity, overwrite=overwrite,
-                               stream_format=(job.disparity_format or "pfm") if job.disparity == STDIO else None)
-    if job.preview is not None:
-        dispio.write_preview(job.preview, disparity, min_disp=min_disp, max_disp=max_disp,
-                             overwrite=overwrite)
-    if right_image is not None:
-        imageio.write_image(job.right, right_image, channel_order="rgb" if right_image.ndim == 3 else "gray",
-                            overwrite=overwrite)
-    timings["write"] = time.perf_counter() - t
-
-    t = time.perf_counter()
     psnr = checks.psnr_at_samples(left, disparity, samples)
     warnings = checks.setup_warnings(estimate) + checks.result_warnings(
         disparity, min_disp=min_disp, max_disp=max_disp, psnr=psnr, auto_range=auto)
     timings["checks"] = time.perf_counter() - t
+
+    t = time.perf_counter()
+    # The outputs and the record of what made them are written together: a batch
+    # interrupted in between would otherwise redo a finished file.
+    with interrupts_deferred():
+        if job.disparity is not None:
+            dispio.write_disparity(job.disparity, disparity, overwrite=overwrite,
+                                   stream_format=(job.disparity_format or "pfm") if job.disparity == STDIO else None)
+        if job.preview is not None:
+            dispio.write_preview(job.preview, disparity, min_disp=min_disp, max_disp=max_disp,
+                                 overwrite=overwrite)
+        if right_image is not None:
+            imageio.write_image(job.right, right_image,
+                                channel_order="rgb" if right_image.ndim == 3 else "gray", overwrite=overwrite)
+        if recipe is not None:
+            write_recipes(outputs.values(), recipe)
+    timings["write"] = time.perf_counter() - t
     timings["total"] = time.perf_counter() - start
 
     valid = np.isfinite(disparity)
@@ -714,6 +732,25 @@ def decode_file(job: DecodeJob) -> dict:
     return summary
 
 
+def _encode_recipe(job: EncodeJob) -> dict:
+    from dataclasses import asdict
+    return make_recipe("sb-encode", [job.source], {
+        "pattern": asdict(job.pattern), "raw_size": list(job.raw_size) if job.raw_size else None,
+        "pix_fmt": job.pix_fmt})
+
+
+def _decode_recipe(job: DecodeJob) -> dict:
+    from dataclasses import asdict
+
+    from ..decoding._decoders import DecoderParams
+    from ..decoding._disprange import is_auto
+    return make_recipe("sb-decode", [job.left, job.samples], {
+        "method": job.method or DEFAULT_METHOD,
+        "max_disp": "auto" if is_auto(job.max_disp) else int(job.max_disp),
+        "min_disp": job.min_disp, "params": asdict(DecoderParams()),
+        "outputs": sorted(job.outputs), "disparity_format": job.disparity_format})
+
+
 def decode_job(job: DecodeJob) -> dict:
     """Do one :class:`DecodeJob`; never raises for bad input (see :func:`encode_job`)."""
     start = time.perf_counter()
@@ -722,11 +759,19 @@ def decode_job(job: DecodeJob) -> dict:
             "outputs": job.outputs}
     _in_job(True)
     try:
-        if (job.batch and not job.overwrite and not job.problem
-                and outputs_up_to_date(job.outputs.values(), [job.left, job.samples])):
-            return {"status": "skipped", **base,
-                    "timings": {"total": round(time.perf_counter() - start, 4)}}
-        return decode_file(job)
+        recipe = _decode_recipe(job) if job.batch and not job.problem else None
+        redone = None
+        if recipe is not None:
+            reason = recipe_difference(job.outputs.values(), recipe)
+            if reason is None and not job.overwrite:
+                return {"status": "skipped", **base, "reason": "up to date",
+                        "timings": {"total": round(time.perf_counter() - start, 4)}}
+            if any(os.path.exists(o) for o in job.outputs.values()):
+                redone = "--overwrite" if reason is None else reason
+        summary = decode_file(job, recipe=recipe)
+        if redone is not None:
+            summary["redone"] = redone
+        return summary
     except Exception as exc:  # noqa: BLE001 -- one bad file must not stop a batch
         if not isinstance(exc, (StereoBudgetError, MemoryError)):
             log.debug("unexpected error on %s", job.label, exc_info=True)

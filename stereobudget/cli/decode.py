@@ -122,9 +122,10 @@ def decode_command(inputs, left_dir, samples_dir, manifest, max_disp, min_disp, 
     folders or quoted globs: pairs are matched by file stem and every output must then
     be a template using {stem}, {name} or {parent} (of the left image).
 
-    In a batch an existing output newer than its inputs is skipped (a rerun resumes),
-    a stale one is redone; --overwrite redoes everything.  Exit status 1 if any pair
-    failed.
+    In a batch an output made from the same inputs with the same options and version
+    is skipped (a rerun resumes; a hidden .NAME.sbrecipe beside it records what made
+    it), any other is redone; --overwrite redoes everything.  Exit status 1 if any
+    pair failed.
 
     The pair must be rectified (a scene point on the same row in both images) and LEFT
     is the left camera's image.  Warnings (stderr, and "warnings" in --json) say when
