@@ -90,7 +90,7 @@ def _pairs_from_arguments(inputs, left_dir, samples_dir, manifest):
 @click.option("--manifest", metavar="PAIRS.csv", default=None,
               help="CSV of pairs: left,samples[,max_disp[,min_disp]] (paths relative to the CSV; "
                    "max_disp may be auto).")
-@click.option("--max-disp", type=_MaxDisp(), default=None,
+@click.option("--max-disp", type=_MaxDisp(), default=None, metavar="N|auto",
               help="Largest disparity searched, in pixels, or 'auto': estimated from the pair (a "
                    "manifest's max_disp column wins).  [default: auto]")
 @click.option("--min-disp", type=int, default=None,
