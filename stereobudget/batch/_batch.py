@@ -898,6 +898,42 @@ def _dask_client(scheduler, workers: int, threads: int | None):
         raise OptionError(f"cannot connect to the dask scheduler {scheduler!r}: {exc}") from None
 
 
+#: Path fields of the jobs, made absolute before they go to a cluster.
+_PATH_FIELDS = ("source", "output", "left", "samples", "disparity", "preview", "right")
+
+
+def _absolute_paths(job):
+    """``job`` with every relative path made absolute here.
+
+    A worker of a real cluster runs in its own folder (wherever ``dask worker`` was
+    started): a relative input would not be found there, and a relative output would
+    land there.  The cluster must see this machine's paths (shared storage).
+    """
+    from dataclasses import fields, is_dataclass, replace
+    if not is_dataclass(job):
+        return job
+    names = {f.name for f in fields(job)}
+    changes = {name: os.path.abspath(getattr(job, name)) for name in _PATH_FIELDS
+               if name in names and isinstance(getattr(job, name), str) and getattr(job, name) != STDIO
+               and not os.path.isabs(getattr(job, name))}
+    return replace(job, **changes) if changes else job
+
+
+def _on_worker(job, *, fn):
+    """``fn(job)`` on a dask worker; a failure names the worker (its files, its memory, its logs)."""
+    result = fn(job)
+    if result.get("status") == "failed":
+        try:
+            from distributed import get_worker
+            address = get_worker().address
+        except Exception:  # noqa: BLE001 -- not on a worker (a threaded client): nothing to add
+            address = None
+        if address:
+            result["worker"] = address
+            result["error"] = f"{result.get('error')} (on worker {address})"
+    return result
+
+
 def _run_dask(jobs: list, fn: Callable, scheduler, workers: int, threads: int | None) -> Iterator[dict]:
     client, cluster, owned = _dask_client(scheduler, workers, threads)
     futures = []
@@ -905,8 +941,9 @@ def _run_dask(jobs: list, fn: Callable, scheduler, workers: int, threads: int | 
         from distributed import as_completed
         if threads:
             jobs = [_with_threads(job, threads) for job in jobs]
+        jobs = [_absolute_paths(job) for job in jobs]
         # pure=False: every job must run even when two are equal (they write files).
-        futures = client.map(fn, jobs, pure=False)
+        futures = client.map(_on_worker, jobs, pure=False, fn=fn)
         index = {future.key: job for future, job in zip(futures, jobs)}
         for future in as_completed(futures):
             try:
