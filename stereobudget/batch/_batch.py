@@ -580,9 +580,9 @@ def _check_output_formats(job: DecodeJob) -> None:
         elif ext(job.disparity) not in DISPARITY_EXTENSIONS:
             raise OutputError(f"unknown disparity format {ext(job.disparity) or '(no extension)'!r}; "
                               f"use one of {', '.join(DISPARITY_EXTENSIONS)}", path=job.disparity)
-    if job.preview is not None and (job.preview == STDIO or ext(job.preview) != ".png"):
-        raise OutputError("a disparity preview is written as PNG; use a .png file name",
-                          path=display_name(job.preview).replace("<stdin>", "<stdout>"))
+    if job.preview is not None and job.preview != STDIO and ext(job.preview) != ".png":
+        raise OutputError("a disparity preview is written as PNG; use a .png file name (or - for stdout)",
+                          path=job.preview)
     if job.right is not None and job.right != STDIO and ext(job.right) not in (".png", ".tif", ".tiff"):
         raise OutputError(f"unsupported image extension {ext(job.right) or '(none)'!r}; "
                           "use .png, .tif or .tiff", path=job.right)

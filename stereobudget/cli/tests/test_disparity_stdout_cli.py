@@ -51,6 +51,17 @@ def test_pfm_and_png_on_stdout_equal_the_file_outputs(pair):
     assert (decoded[~valid] == 0).all()
 
 
+def test_preview_on_stdout_is_the_file_preview_with_its_colour_bar(pair):
+    folder, left, samples = pair
+    as_file = sb_decode(left, samples, "--max-disp", 40, "--preview", "p.png", "--overwrite", cwd=folder)
+    assert as_file.returncode == 0, as_file.stderr
+    piped = sb_decode(left, samples, "--max-disp", 40, "--preview", "-", cwd=folder)
+    assert piped.returncode == 0, piped.stderr
+    assert piped.stdout == (folder / "p.png").read_bytes()
+    image = cv2.imdecode(np.frombuffer(piped.stdout, np.uint8), cv2.IMREAD_COLOR)
+    assert image.shape[1] == 320 and image.shape[0] > 240      # the map, then the bar and its scale
+
+
 @pytest.mark.parametrize("args, fragment", [
     (["--disparity", "d2.pfm", "--format", "png"], "--format sets the format of --disparity -"),
     (["--disparity", "-", "--right", "-"], "only one output can go to standard output"),
