@@ -36,8 +36,8 @@ def main(argv=None) -> int:
     parser.add_argument("--kind", default="slanted", help="synthetic scene kind (see stereobudget.scenes)")
     args = parser.parse_args(argv)
     info = write_demo_pair(args.out_dir, kind=args.kind)
-    print(f"wrote {info['left']}, {info['right']} and {info['gt']}; use --max-disp {info['max_disp']}",
-          file=sys.stderr)
+    print(f"wrote {info['left']}, {info['right']} and {info['gt']}; the disparities are within "
+          f"--max-disp {info['max_disp']} (sb-decode estimates the range when it is not given)", file=sys.stderr)
     return 0
 
 

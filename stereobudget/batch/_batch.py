@@ -15,11 +15,12 @@ The CLI commands are thin; everything a batch needs lives here so that other pro
 * :func:`run_jobs` runs jobs in-process (1 job), in a local process pool, or on a
   dask.distributed cluster, and yields the result dicts as they complete.
 
-Up-to-date rule (as ``make`` does): in a batch, a job whose outputs all exist and are at
-least as new as all its inputs is skipped; if any output is missing or older than an
-input, the job is redone and its outputs are replaced.  ``overwrite=True`` redoes every
-job.  Outputs are always written atomically, so an interrupted batch leaves complete
-outputs (skipped on the next run) and no partial ones.
+Up-to-date rule: in a batch, each output gets a record of what made it (tool version,
+inputs' paths, sizes and times, options, decoder parameters: :mod:`stereobudget.batch._recipes`);
+a job whose outputs all exist with the record the job would write is skipped, any other
+is redone (its result says why, under ``redone``) and its outputs are replaced.
+``overwrite=True`` redoes every job.  Outputs are always written atomically, so an
+interrupted batch leaves complete outputs and no partial ones.
 
 This module imports neither numba nor OpenCV: the camera-side ``sb-encode`` uses it.
 """
@@ -38,9 +39,11 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Callable, Iterable, Iterator
 
-from ..io._atomic import STDIO, check_output_path, display_name, redeliver_swallowed_interrupts
+from ..io._atomic import (STDIO, check_output_path, display_name, interrupts_deferred,
+                          redeliver_swallowed_interrupts)
 from ..errors import MemoryLimitError, OptionError, OutputError, StereoBudgetError
 from ..decoding._methods import DEFAULT_METHOD
+from ._recipes import make_recipe, recipe_difference, write_recipes
 
 log = logging.getLogger("stereobudget")
 
@@ -199,7 +202,7 @@ class Pair:
     stem: str
     left: str | None
     samples: str | None
-    max_disp: int | None = None
+    max_disp: int | str | None = None
     min_disp: int | None = None
     problem: str | None = None
 
@@ -239,10 +242,12 @@ def pair_by_stem(lefts: list[str], samples: list[str]) -> list[Pair]:
     return pairs
 
 
-def _manifest_int(value: str, column: str, where: str) -> int | None:
+def _manifest_int(value: str, column: str, where: str, *, auto: bool = False) -> int | str | None:
     value = (value or "").strip()
     if not value:
         return None
+    if auto and value.lower() == "auto":
+        return "auto"
     try:
         return int(value)
     except ValueError:
@@ -252,7 +257,8 @@ def _manifest_int(value: str, column: str, where: str) -> int | None:
 def read_manifest(path: str) -> list[Pair]:
     """Read a CSV manifest of decoding pairs.
 
-    Columns ``left,samples[,max_disp[,min_disp]]``; a first row naming the columns
+    Columns ``left,samples[,max_disp[,min_disp]]`` (``max_disp`` may be ``auto``: estimated,
+    as an empty cell); a first row naming the columns
     (``left,samples,...`` in any order) is optional.  Relative paths are relative to the
     manifest's folder; empty lines and lines starting with ``#`` are ignored.
 
@@ -298,7 +304,7 @@ def read_manifest(path: str) -> list[Pair]:
         samples = (str(base / record["samples"]) if not os.path.isabs(record["samples"])
                    else record["samples"])
         pairs.append(Pair(stem=Path(left).stem, left=left, samples=samples,
-                          max_disp=_manifest_int(record.get("max_disp", ""), "max_disp", where),
+                          max_disp=_manifest_int(record.get("max_disp", ""), "max_disp", where, auto=True),
                           min_disp=_manifest_int(record.get("min_disp", ""), "min_disp", where)))
     if not pairs:
         raise OptionError("the manifest lists no pair", path=str(path))
@@ -432,14 +438,23 @@ def encode_job(job: EncodeJob) -> dict:
               "output": "<stdout>" if job.output == STDIO else job.output}
     _in_job(True)
     try:
-        if job.batch and not job.overwrite and outputs_up_to_date([job.output], [job.source]):
-            result["status"] = "skipped"
-            return result
+        recipe = _encode_recipe(job) if job.batch else None
+        if recipe is not None:
+            reason = recipe_difference([job.output], recipe)
+            if reason is None and not job.overwrite:
+                result.update(status="skipped", reason="up to date")
+                return result
+            if os.path.exists(job.output):
+                result["redone"] = "--overwrite" if reason is None else reason
         from ..io._samples import encode_file
         overwrite = _prepare_outputs([job.output], [job.source], overwrite=job.overwrite,
                                      make_dirs=job.batch)
-        report = encode_file(job.source, job.output, pattern=job.pattern, raw_size=job.raw_size,
-                             pix_fmt=job.pix_fmt, overwrite=overwrite)
+        # Output and record together (see decode_file); an encode takes milliseconds.
+        with interrupts_deferred():
+            report = encode_file(job.source, job.output, pattern=job.pattern, raw_size=job.raw_size,
+                                 pix_fmt=job.pix_fmt, overwrite=overwrite)
+            if recipe is not None:
+                write_recipes([job.output], recipe)
         result.update(report.as_dict())
         result["input"] = report.source
     except (StereoBudgetError, MemoryError) as exc:
@@ -465,7 +480,12 @@ class DecodeJob:
     disparity, preview, right : str or None
         Outputs: disparity map (format by extension), colour preview PNG, recovered right
         image Î2 (PNG/TIFF, input's channels and bit depth; ``-`` = standard output).
-    max_disp, min_disp : int
+    max_disp : int, "auto" or None
+        Largest disparity searched; None or ``"auto"``: estimated from the pair
+        (:func:`stereobudget.decoding.estimate_disparity_range`).
+    min_disp : int or None
+        Smallest disparity searched; None: the estimate's when ``max_disp`` is estimated,
+        else 0.
     method : str or None
         Decoder (None: the library default).
     overwrite, batch : bool
@@ -476,6 +496,8 @@ class DecodeJob:
         Why this pair cannot be decoded (set by the pairing step).
     max_memory : int or None
         Memory limit of the decode in bytes (None: 75 % of the available memory).
+    disparity_format : {"pfm", "png"} or None
+        Format of a disparity map written to standard output (``disparity="-"``; None: PFM).
     """
 
     left: str | None
@@ -483,14 +505,15 @@ class DecodeJob:
     disparity: str | None = None
     preview: str | None = None
     right: str | None = None
-    max_disp: int | None = None
-    min_disp: int = 0
+    max_disp: int | str | None = None
+    min_disp: int | None = None
     method: str | None = None
     overwrite: bool = False
     batch: bool = False
     threads: int | None = None
     problem: str | None = None
     max_memory: int | None = None
+    disparity_format: str | None = None
 
     @property
     def label(self) -> str:
@@ -549,25 +572,28 @@ def _check_output_formats(job: DecodeJob) -> None:
     def ext(path):
         return Path(path).suffix.lower()
 
+    if sum(path == STDIO for path in job.outputs.values()) > 1:
+        raise OptionError("only one output can go to standard output ('-')")
     if job.disparity is not None:
         if job.disparity == STDIO:
-            raise OutputError("a disparity map cannot go to standard output; give a file name", path="<stdout>")
-        if ext(job.disparity) not in DISPARITY_EXTENSIONS:
+            pass   # the stream's format is job.disparity_format (PFM unless png)
+        elif ext(job.disparity) not in DISPARITY_EXTENSIONS:
             raise OutputError(f"unknown disparity format {ext(job.disparity) or '(no extension)'!r}; "
                               f"use one of {', '.join(DISPARITY_EXTENSIONS)}", path=job.disparity)
-    if job.preview is not None and (job.preview == STDIO or ext(job.preview) != ".png"):
-        raise OutputError("a disparity preview is written as PNG; use a .png file name",
-                          path=display_name(job.preview).replace("<stdin>", "<stdout>"))
+    if job.preview is not None and job.preview != STDIO and ext(job.preview) != ".png":
+        raise OutputError("a disparity preview is written as PNG; use a .png file name (or - for stdout)",
+                          path=job.preview)
     if job.right is not None and job.right != STDIO and ext(job.right) not in (".png", ".tif", ".tiff"):
         raise OutputError(f"unsupported image extension {ext(job.right) or '(none)'!r}; "
                           "use .png, .tif or .tiff", path=job.right)
 
 
-def decode_file(job: DecodeJob) -> dict:
+def decode_file(job: DecodeJob, *, recipe: dict | None = None) -> dict:
     """Decode one pair and write its outputs; raises on any problem.
 
     This is the single-file path of ``sb-decode`` (errors keep their class and exit
-    code); batches use :func:`decode_job`, which wraps it.
+    code); batches use :func:`decode_job`, which wraps it.  ``recipe``
+    (:func:`stereobudget.batch._recipes.make_recipe`) is recorded beside the outputs.
 
     Returns
     -------
@@ -580,9 +606,6 @@ def decode_file(job: DecodeJob) -> dict:
     start = time.perf_counter()
     if job.problem:
         raise OptionError(job.problem, path=job.label)
-    if job.max_disp is None:
-        raise OptionError("no --max-disp for this pair (give --max-disp or a max_disp column)",
-                          path=job.label)
     if job.left == STDIO and job.samples == STDIO:
         raise OptionError("only one of LEFT and SAMPLES can be '-' (standard input)")
     outputs = job.outputs
@@ -607,6 +630,8 @@ def decode_file(job: DecodeJob) -> dict:
     timings["read"] = time.perf_counter() - t
 
     # The decoder (numba) loads only once both inputs have been read successfully.
+    import math
+
     import numpy as np
 
     from ..decoding import _decoders as decoders
@@ -615,15 +640,32 @@ def decode_file(job: DecodeJob) -> dict:
     _limit_numba_threads(job.threads)
     t = time.perf_counter()
     left_name, samples_name = display_name(job.left), display_name(job.samples)
+    from ..decoding import _checks as checks
+    from ..decoding import _disprange as disprange
+    auto = disprange.is_auto(job.max_disp)
     try:
-        decoders.check_inputs(left, samples, min_disp=job.min_disp, max_disp=job.max_disp)
+        # Sizes and types first (the estimate needs them to agree), then the range.
+        decoders.check_inputs(left, samples, min_disp=0, max_disp=1)
+        timings["validate"] = time.perf_counter() - t
+        if not job.batch:
+            # After an install or upgrade numba compiles for minutes: say so before the
+            # first kernel runs (a batch says it once, in the command).
+            from .._kernels._first_run import announce_first_compile
+            announce_first_compile()
+        t = time.perf_counter()
+        min_disp, max_disp, estimate = disprange.resolve_range(left, samples, max_disp=job.max_disp,
+                                                               min_disp=job.min_disp)
+        timings["estimate_range"] = time.perf_counter() - t
+        decoders.check_inputs(left, samples, min_disp=min_disp, max_disp=max_disp)
     except (MismatchError, OptionError) as exc:
         raise type(exc)(f"{exc.message} ({samples_name})", path=left_name) from None
-    timings["validate"] = time.perf_counter() - t
+    if auto:
+        log.info("%s: disparity range %d..%d (estimated from %d matches in %.2f s)", left_name, min_disp,
+                 max_disp, estimate.votes, estimate.seconds)
 
     method = job.method or DEFAULT_METHOD
     try:
-        result = decoders.decode(left, samples, max_disp=job.max_disp, min_disp=job.min_disp, method=method,
+        result = decoders.decode(left, samples, max_disp=max_disp, min_disp=min_disp, method=method,
                                  max_memory=job.max_memory)
     except MemoryLimitError as exc:
         raise MemoryLimitError(exc.message, path=left_name) from None
@@ -640,14 +682,26 @@ def decode_file(job: DecodeJob) -> dict:
         timings["right"] = time.perf_counter() - t
 
     t = time.perf_counter()
-    if job.disparity is not None:
-        dispio.write_disparity(job.disparity, disparity, overwrite=overwrite)
-    if job.preview is not None:
-        dispio.write_preview(job.preview, disparity, min_disp=job.min_disp, max_disp=job.max_disp,
-                             overwrite=overwrite)
-    if right_image is not None:
-        imageio.write_image(job.right, right_image, channel_order="rgb" if right_image.ndim == 3 else "gray",
-                            overwrite=overwrite)
+    psnr = checks.psnr_at_samples(left, disparity, samples)
+    warnings = checks.setup_warnings(estimate) + checks.result_warnings(
+        disparity, min_disp=min_disp, max_disp=max_disp, psnr=psnr, auto_range=auto)
+    timings["checks"] = time.perf_counter() - t
+
+    t = time.perf_counter()
+    # The outputs and the record of what made them are written together: a batch
+    # interrupted in between would otherwise redo a finished file.
+    with interrupts_deferred():
+        if job.disparity is not None:
+            dispio.write_disparity(job.disparity, disparity, overwrite=overwrite,
+                                   stream_format=(job.disparity_format or "pfm") if job.disparity == STDIO else None)
+        if job.preview is not None:
+            dispio.write_preview(job.preview, disparity, min_disp=min_disp, max_disp=max_disp,
+                                 overwrite=overwrite)
+        if right_image is not None:
+            imageio.write_image(job.right, right_image,
+                                channel_order="rgb" if right_image.ndim == 3 else "gray", overwrite=overwrite)
+        if recipe is not None:
+            write_recipes(outputs.values(), recipe)
     timings["write"] = time.perf_counter() - t
     timings["total"] = time.perf_counter() - start
 
@@ -659,7 +713,10 @@ def decode_file(job: DecodeJob) -> dict:
         "sample_count": int(samples.values.shape[0]), "epsilon": samples.epsilon,
         "pattern": samples.pattern.kind, "stride_x": samples.pattern.stride_x,
         "stride_y": samples.pattern.stride_y,
-        "method": result.method, "min_disp": int(job.min_disp), "max_disp": int(job.max_disp),
+        "method": result.method, "min_disp": int(min_disp), "max_disp": int(max_disp),
+        "range_source": "estimated" if auto else "given", "range_estimate": estimate.summary(),
+        "psnr_at_samples": psnr if math.isfinite(psnr) else None,
+        "warnings": [w.as_dict() for w in warnings],
         "disparity_range": ([float(disparity[valid].min()), float(disparity[valid].max())]
                             if valid.any() else None),
         "valid_fraction": float(valid.mean()),
@@ -675,6 +732,25 @@ def decode_file(job: DecodeJob) -> dict:
     return summary
 
 
+def _encode_recipe(job: EncodeJob) -> dict:
+    from dataclasses import asdict
+    return make_recipe("sb-encode", [job.source], {
+        "pattern": asdict(job.pattern), "raw_size": list(job.raw_size) if job.raw_size else None,
+        "pix_fmt": job.pix_fmt})
+
+
+def _decode_recipe(job: DecodeJob) -> dict:
+    from dataclasses import asdict
+
+    from ..decoding._decoders import DecoderParams
+    from ..decoding._disprange import is_auto
+    return make_recipe("sb-decode", [job.left, job.samples], {
+        "method": job.method or DEFAULT_METHOD,
+        "max_disp": "auto" if is_auto(job.max_disp) else int(job.max_disp),
+        "min_disp": job.min_disp, "params": asdict(DecoderParams()),
+        "outputs": sorted(job.outputs), "disparity_format": job.disparity_format})
+
+
 def decode_job(job: DecodeJob) -> dict:
     """Do one :class:`DecodeJob`; never raises for bad input (see :func:`encode_job`)."""
     start = time.perf_counter()
@@ -683,11 +759,19 @@ def decode_job(job: DecodeJob) -> dict:
             "outputs": job.outputs}
     _in_job(True)
     try:
-        if (job.batch and not job.overwrite and not job.problem
-                and outputs_up_to_date(job.outputs.values(), [job.left, job.samples])):
-            return {"status": "skipped", **base,
-                    "timings": {"total": round(time.perf_counter() - start, 4)}}
-        return decode_file(job)
+        recipe = _decode_recipe(job) if job.batch and not job.problem else None
+        redone = None
+        if recipe is not None:
+            reason = recipe_difference(job.outputs.values(), recipe)
+            if reason is None and not job.overwrite:
+                return {"status": "skipped", **base, "reason": "up to date",
+                        "timings": {"total": round(time.perf_counter() - start, 4)}}
+            if any(os.path.exists(o) for o in job.outputs.values()):
+                redone = "--overwrite" if reason is None else reason
+        summary = decode_file(job, recipe=recipe)
+        if redone is not None:
+            summary["redone"] = redone
+        return summary
     except Exception as exc:  # noqa: BLE001 -- one bad file must not stop a batch
         if not isinstance(exc, (StereoBudgetError, MemoryError)):
             log.debug("unexpected error on %s", job.label, exc_info=True)
@@ -814,6 +898,42 @@ def _dask_client(scheduler, workers: int, threads: int | None):
         raise OptionError(f"cannot connect to the dask scheduler {scheduler!r}: {exc}") from None
 
 
+#: Path fields of the jobs, made absolute before they go to a cluster.
+_PATH_FIELDS = ("source", "output", "left", "samples", "disparity", "preview", "right")
+
+
+def _absolute_paths(job):
+    """``job`` with every relative path made absolute here.
+
+    A worker of a real cluster runs in its own folder (wherever ``dask worker`` was
+    started): a relative input would not be found there, and a relative output would
+    land there.  The cluster must see this machine's paths (shared storage).
+    """
+    from dataclasses import fields, is_dataclass, replace
+    if not is_dataclass(job):
+        return job
+    names = {f.name for f in fields(job)}
+    changes = {name: os.path.abspath(getattr(job, name)) for name in _PATH_FIELDS
+               if name in names and isinstance(getattr(job, name), str) and getattr(job, name) != STDIO
+               and not os.path.isabs(getattr(job, name))}
+    return replace(job, **changes) if changes else job
+
+
+def _on_worker(job, *, fn):
+    """``fn(job)`` on a dask worker; a failure names the worker (its files, its memory, its logs)."""
+    result = fn(job)
+    if result.get("status") == "failed":
+        try:
+            from distributed import get_worker
+            address = get_worker().address
+        except Exception:  # noqa: BLE001 -- not on a worker (a threaded client): nothing to add
+            address = None
+        if address:
+            result["worker"] = address
+            result["error"] = f"{result.get('error')} (on worker {address})"
+    return result
+
+
 def _run_dask(jobs: list, fn: Callable, scheduler, workers: int, threads: int | None) -> Iterator[dict]:
     client, cluster, owned = _dask_client(scheduler, workers, threads)
     futures = []
@@ -821,8 +941,9 @@ def _run_dask(jobs: list, fn: Callable, scheduler, workers: int, threads: int | 
         from distributed import as_completed
         if threads:
             jobs = [_with_threads(job, threads) for job in jobs]
+        jobs = [_absolute_paths(job) for job in jobs]
         # pure=False: every job must run even when two are equal (they write files).
-        futures = client.map(fn, jobs, pure=False)
+        futures = client.map(_on_worker, jobs, pure=False, fn=fn)
         index = {future.key: job for future, job in zip(futures, jobs)}
         for future in as_completed(futures):
             try:

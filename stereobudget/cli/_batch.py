@@ -40,14 +40,17 @@ def _show_progress() -> bool:
     return tty and log.getEffectiveLevel() <= logging.WARNING
 
 
-def run_batch(jobs: list, fn, *, workers: int | None, scheduler: str | None, as_json: bool) -> None:
+def run_batch(jobs: list, fn, *, workers: int | None, scheduler: str | None, as_json: bool,
+              on_result=None) -> None:
     """Run ``jobs`` with ``fn``; print JSON lines / failures; exit 1 if any file failed.
 
+    ``on_result(item)`` is called for every file done (``ok``), e.g. to print its warnings.
     Returns normally only when every file is ``ok`` or ``skipped``.
     """
     from stereobudget.batch import run_jobs
 
     counts = {"ok": 0, "skipped": 0, "failed": 0}
+    redone: dict[str, int] = {}
     bar_context = (click.progressbar(length=len(jobs), label=common.prog_name(), file=sys.stderr)
                    if _show_progress() and len(jobs) > 1 else contextlib.nullcontext())
     with bar_context as bar:
@@ -60,12 +63,25 @@ def run_batch(jobs: list, fn, *, workers: int | None, scheduler: str | None, as_
                     log.error("error: %s", item.get("error"))
                 elif status == "skipped":
                     log.info("%s: up to date, skipped", item.get("input") or item.get("left"))
+                else:
+                    if item.get("redone"):
+                        reason = item["redone"]
+                        redone[reason] = redone.get(reason, 0) + 1
+                        log.info("%s: redone (%s)", item.get("input") or item.get("left"), reason)
+                    if on_result is not None:
+                        on_result(item)
                 if as_json:
                     common.emit_json(item)
                     sys.stdout.flush()
                 if bar is not None:
                     bar.update(1)
     total = sum(counts.values())
+    # Said at the default verbosity: a rerun that changes nothing must not look like one that worked.
+    if counts["skipped"]:
+        log.warning("%d of %d file(s) skipped: up to date (same inputs, options and version; "
+                    "--overwrite redoes them)", counts["skipped"], total)
+    for reason, count in sorted(redone.items(), key=lambda kv: -kv[1]):
+        log.warning("%d file(s) redone: %s", count, reason)
     log.info("%d file(s): %d done, %d skipped, %d failed", total, counts["ok"], counts["skipped"],
              counts["failed"])
     if counts["failed"]:

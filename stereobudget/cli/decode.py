@@ -23,6 +23,33 @@ log = logging.getLogger("stereobudget")
 _OUTPUT_OPTIONS = (("disparity", "--disparity"), ("preview", "--preview"), ("right", "--right"))
 
 
+class _MaxDisp(click.ParamType):
+    """``--max-disp``: a positive integer, or ``auto`` (estimated from the pair)."""
+
+    name = "N|auto"
+
+    def convert(self, value, param, ctx):
+        if isinstance(value, int) or value is None:
+            return value
+        text = str(value).strip().lower()
+        if text == "auto":
+            return "auto"
+        try:
+            number = int(text)
+        except ValueError:
+            self.fail(f"{value!r} is neither an integer nor 'auto'", param, ctx)
+        if not 1 <= number <= 65535:
+            self.fail(f"{number} is not in the range 1<=x<=65535 (or 'auto')", param, ctx)
+        return number
+
+
+def report_warnings(summary: dict, *, label: str | None = None) -> None:
+    """Print a decode's warnings on stderr, one line each (``-q`` silences them)."""
+    prefix = f"{label}: " if label else ""
+    for warning in summary.get("warnings") or ():
+        log.warning("warning: %s%s [%s]", prefix, warning["message"], warning["code"])
+
+
 def _pairs_from_arguments(inputs, left_dir, samples_dir, manifest):
     """The (left, samples) pairs and whether they came from a multi-file source."""
     from stereobudget.batch._batch import (IMAGE_EXTENSIONS, SAMPLE_EXTENSIONS, Pair, expand_inputs,
@@ -61,14 +88,21 @@ def _pairs_from_arguments(inputs, left_dir, samples_dir, manifest):
 @click.option("--samples-dir", metavar="DIR", default=None,
               help="Folder (or quoted glob) of .sbs sample files.")
 @click.option("--manifest", metavar="PAIRS.csv", default=None,
-              help="CSV of pairs: left,samples[,max_disp[,min_disp]] (paths relative to the CSV).")
-@click.option("--max-disp", type=click.IntRange(1, 65535), default=None,
-              help="Largest disparity searched, in pixels (required unless the manifest has it).")
-@click.option("--min-disp", type=int, default=0, show_default=True, help="Smallest disparity searched.")
+              help="CSV of pairs: left,samples[,max_disp[,min_disp]] (paths relative to the CSV; "
+                   "max_disp may be auto).")
+@click.option("--max-disp", type=_MaxDisp(), default=None, metavar="N|auto",
+              help="Largest disparity searched, in pixels, or 'auto': estimated from the pair (a "
+                   "manifest's max_disp column wins).  [default: auto]")
+@click.option("--min-disp", type=int, default=None,
+              help="Smallest disparity searched.  [default: the estimate's with --max-disp auto "
+                   "(0 unless the matches are negative), else 0]")
 @click.option("--method", type=click.Choice(METHODS), default=None,
               help=f"Decoder.  [default: {DEFAULT_METHOD}]")
 @click.option("--disparity", metavar="OUT", default=None,
-              help="Disparity map: .pfm, .tif/.tiff (float32), .png (16-bit x256) or .npy.")
+              help="Disparity map: .pfm, .tif/.tiff (float32), .png (16-bit x256) or .npy; '-' = stdout "
+                   "(PFM, or PNG with --format png).")
+@click.option("--format", "disparity_format", type=click.Choice(("pfm", "png")), default=None,
+              help="Format of --disparity - on standard output.  [default: pfm]")
 @click.option("--preview", metavar="OUT.png", default=None, help="Colour preview of the disparity (PNG).")
 @click.option("--right", metavar="OUT", default=None,
               help="Recovered right image (PNG/TIFF, the input's channels and bit depth; '-' = stdout).")
@@ -82,21 +116,29 @@ def _pairs_from_arguments(inputs, left_dir, samples_dir, manifest):
 @common.version_option
 @common.handle_errors
 def decode_command(inputs, left_dir, samples_dir, manifest, max_disp, min_disp, method, disparity,
-                   preview, right, max_memory, jobs, scheduler, overwrite, as_json):
+                   disparity_format, preview, right, max_memory, jobs, scheduler, overwrite, as_json):
     """Recover the disparity of LEFT from the right camera's SAMPLES (.sbs).
 
     One of LEFT and SAMPLES may be '-' (standard input).  LEFT and SAMPLES may also be
     folders or quoted globs: pairs are matched by file stem and every output must then
     be a template using {stem}, {name} or {parent} (of the left image).
 
-    In a batch an existing output newer than its inputs is skipped (a rerun resumes),
-    a stale one is redone; --overwrite redoes everything.  Exit status 1 if any pair
-    failed.
+    In a batch an output made from the same inputs with the same options and version
+    is skipped (a rerun resumes; a hidden .NAME.sbrecipe beside it records what made
+    it), any other is redone; --overwrite redoes everything.  Exit status 1 if any
+    pair failed.
+
+    The pair must be rectified (a scene point on the same row in both images) and LEFT
+    is the left camera's image.  Warnings (stderr, and "warnings" in --json) say when
+    many pixels sit at the range limits, when the result does not reproduce the
+    samples, and when the pair looks swapped or not rectified.
 
     \b
     Examples:
+      sb-decode left.png right.sbs --disparity d.pfm -v        # range estimated
       sb-decode left.png right.sbs --max-disp 60 --disparity d.pfm --preview d.png
       sb-decode left.png right.sbs --max-disp 60 --disparity d.tif --right r.png --json
+      sb-decode left.png right.sbs --disparity - --format png > d.png
       ssh cam sb-encode - -o - < r.png | sb-decode left.png - --max-disp 60 --disparity d.pfm
       sb-decode --left-dir L --samples-dir S --max-disp 60 \\
           --disparity 'D/{stem}.pfm' --right 'R/{stem}.png' -j 2
@@ -126,6 +168,9 @@ def decode_command(inputs, left_dir, samples_dir, manifest, max_disp, min_disp, 
             raise OptionError("'-' (standard output) works with a single pair only")
     if as_json and "-" in templates.values():
         raise OptionError("--json cannot be combined with an output on '-' (stdout carries the image)")
+    if disparity_format is not None and disparity != "-":
+        raise OptionError("--format sets the format of --disparity - (standard output); a file's format "
+                          "follows its extension")
     if scheduler is not None and not batch:
         log.info("--scheduler ignored for a single pair")
 
@@ -139,20 +184,25 @@ def decode_command(inputs, left_dir, samples_dir, manifest, max_disp, min_disp, 
         job_list.append(DecodeJob(
             left=pair.left, samples=pair.samples, max_disp=pair_max,
             min_disp=pair.min_disp if pair.min_disp is not None else min_disp, method=method,
-            overwrite=overwrite, batch=batch, problem=pair.problem, max_memory=max_memory, **outputs))
-    if all(job.max_disp is None for job in job_list):
-        raise OptionError("missing --max-disp (the largest disparity to search, in pixels)")
-
+            overwrite=overwrite, batch=batch, problem=pair.problem, max_memory=max_memory,
+            disparity_format=disparity_format, **outputs))
     if not batch:
         summary = decode_file(job_list[0])
-        log.info("%s + %s -> %s: %dx%d, epsilon %.2f %%, %s, %.2f s", summary["left"], summary["samples"],
-                 ", ".join(summary["outputs"].values()), summary["width"], summary["height"],
-                 100 * summary["epsilon"], summary["method"], summary["timings"]["total"])
+        log.info("%s + %s -> %s: %dx%d, epsilon %.2f %%, %s, disparity %d..%d (%s), %.2f s", summary["left"],
+                 summary["samples"], ", ".join(summary["outputs"].values()), summary["width"], summary["height"],
+                 100 * summary["epsilon"], summary["method"], summary["min_disp"], summary["max_disp"],
+                 summary["range_source"], summary["timings"]["total"])
+        report_warnings(summary)
         if as_json:
             common.emit_json(summary)
         return
     check_distinct_outputs(job_list, key=lambda job: job.outputs.values())
-    _batch.run_batch(job_list, decode_job, workers=jobs, scheduler=scheduler, as_json=as_json)
+    # After an install or upgrade numba compiles for minutes: say so once, here (a single
+    # pair says it in decode_file, once its inputs have been read and checked).
+    from stereobudget._kernels._first_run import announce_first_compile
+    announce_first_compile()
+    _batch.run_batch(job_list, decode_job, workers=jobs, scheduler=scheduler, as_json=as_json,
+                     on_result=lambda item: report_warnings(item, label=item.get("left")))
 
 
 main = common.make_main(decode_command, "sb-decode")

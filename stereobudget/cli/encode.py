@@ -107,8 +107,9 @@ def encode_command(images, output, stride, stride_x, stride_y, offset, pattern, 
       sb-encode 'cam_r/*.png' -o 'out/{stem}.sbs' -j 2 # many files (quoted glob)
 
     With several inputs (files, folders, quoted globs) or a templated -o, an output
-    newer than its input is skipped (a rerun resumes), a stale one is redone;
-    --overwrite redoes all.  Exit status 1 if any file failed.
+    made from the same input with the same options and version is skipped (a rerun
+    resumes; a hidden .NAME.sbrecipe beside it records what made it), any other is
+    redone; --overwrite redoes all.  Exit status 1 if any file failed.
     """
     if info_file is not None:
         if images or output is not None:

@@ -37,6 +37,8 @@ from ..errors import ImageReadError, OutputError
 logger = logging.getLogger(__name__)
 
 DISPARITY_EXTENSIONS = (".pfm", ".tif", ".tiff", ".png", ".npy")
+#: Formats a disparity map can take on standard output (``-``), the first the default.
+STREAM_FORMATS = ("pfm", "png")
 
 PNG_SCALE = 256.0
 PNG_MAX_DISPARITY = 65535 / PNG_SCALE  # 255.996...
@@ -200,26 +202,37 @@ def _decode_npy(path: str) -> np.ndarray:
 
 # --------------------------------------------------------------------------- public API
 
-def write_disparity(path, disparity, *, overwrite: bool = False) -> None:
+def write_disparity(path, disparity, *, overwrite: bool = False, stream_format: str | None = None) -> None:
     """Write a disparity map atomically in the format given by the extension of ``path``.
 
     Parameters
     ----------
     path : str or Path
         Output file; extension ``.pfm``, ``.tif``/``.tiff``, ``.png`` (16-bit, x256) or ``.npy``.
+        ``-`` writes to standard output in ``stream_format``.
     disparity : ndarray, (H, W), float
         Disparity of the left view; NaN (or any non-finite value) marks invalid pixels.
     overwrite : bool
         Replace an existing file.  Without it an existing ``path`` raises :class:`OutputError`.
+    stream_format : {"pfm", "png"}, optional
+        Format on standard output (default ``"pfm"``); also a file's format when given.
 
     Raises
     ------
     OutputError
-        Unknown extension, existing file without ``overwrite``, or the file cannot be written.
+        Unknown extension, existing file without ``overwrite``, standard output that is a
+        terminal, or the file cannot be written.
     ValueError
         ``disparity`` is not a non-empty numeric 2-D array.
     """
-    ext = _extension(path)
+    if stream_format is not None or str(path) == "-":
+        fmt = (stream_format or STREAM_FORMATS[0]).lower()
+        if fmt not in STREAM_FORMATS:
+            raise OutputError(f"unknown disparity stream format {fmt!r}; use {' or '.join(STREAM_FORMATS)}",
+                              path="<stdout>" if str(path) == "-" else str(path))
+        ext = "." + fmt
+    else:
+        ext = _extension(path)
     if ext not in DISPARITY_EXTENSIONS:
         raise OutputError(f"unknown disparity format {ext or '(no extension)'!r}; "
                           f"use one of {', '.join(DISPARITY_EXTENSIONS)}", path=str(path))
@@ -229,7 +242,7 @@ def write_disparity(path, disparity, *, overwrite: bool = False) -> None:
     elif ext in (".tif", ".tiff"):
         payload = _encode_tiff(d)
     elif ext == ".png":
-        payload = _encode_png16(d, str(path))
+        payload = _encode_png16(d, "<stdout>" if str(path) == "-" else str(path))
     else:
         payload = _encode_npy(d)
     write_output_bytes(path, payload, overwrite=overwrite)
@@ -302,24 +315,65 @@ def disparity_preview(disparity, *, min_disp: float | None = None,
     return rgb
 
 
+#: Narrowest preview that gets a colour bar (its three labels need the room).
+SCALE_BAR_MIN_WIDTH = 96
+
+
+def with_scale_bar(rgb: np.ndarray, *, min_disp: float, max_disp: float) -> np.ndarray:
+    """``rgb`` (a :func:`disparity_preview`) with a colour bar and its disparity scale below it.
+
+    The bar runs through the colour map from ``min_disp`` (left) to ``max_disp`` (right)
+    across the image width, labelled at both ends and the middle in pixels of disparity;
+    "invalid = black" is implied by the black of the map.  Images narrower than
+    :data:`SCALE_BAR_MIN_WIDTH` are returned unchanged.
+    """
+    h, w = rgb.shape[:2]
+    if w < SCALE_BAR_MIN_WIDTH:
+        return rgb
+    bar_h, text_h = max(8, min(24, h // 24)), 16
+    levels = np.rint(np.linspace(0, 255, w)).astype(np.uint8)[None, :].repeat(bar_h, axis=0)
+    bar = cv2.cvtColor(cv2.applyColorMap(levels, cv2.COLORMAP_TURBO), cv2.COLOR_BGR2RGB)
+    labels = np.full((text_h, w, 3), 255, np.uint8)
+    font, scale = cv2.FONT_HERSHEY_SIMPLEX, 0.4
+
+    def label(value, anchor):
+        text = f"{value:g}" if anchor != "right" else f"{value:g} px"
+        (tw, _), _ = cv2.getTextSize(text, font, scale, 1)
+        x = {"left": 1, "middle": (w - tw) // 2, "right": w - tw - 1}[anchor]
+        cv2.putText(labels, text, (max(0, x), text_h - 4), font, scale, (0, 0, 0), 1, cv2.LINE_AA)
+
+    label(round(float(min_disp), 2), "left")
+    label(round((float(min_disp) + float(max_disp)) / 2, 2), "middle")
+    label(round(float(max_disp), 2), "right")
+    return np.concatenate([rgb, bar, labels], axis=0)
+
+
 def write_preview(path, disparity, *, min_disp: float | None, max_disp: float | None,
-                  overwrite: bool = False) -> None:
+                  overwrite: bool = False, scale_bar: bool = True) -> None:
     """Write :func:`disparity_preview` of ``disparity`` as an 8-bit RGB PNG, atomically.
 
     Parameters
     ----------
     path : str or Path
-        Output PNG.
+        Output PNG; ``-`` writes it to standard output.
     disparity : ndarray, (H, W), float
         Disparity map; NaN = invalid (drawn black).
     min_disp, max_disp : float or None
         Colour-map range (None: the valid range of ``disparity``).
     overwrite : bool
         Replace an existing file.
+    scale_bar : bool
+        Append the colour bar and its scale below the map (:func:`with_scale_bar`).
     """
-    if _extension(path) != ".png":
+    if str(path) != "-" and _extension(path) != ".png":
         raise OutputError("a disparity preview is written as PNG; use a .png file name", path=str(path))
     rgb = disparity_preview(disparity, min_disp=min_disp, max_disp=max_disp)
+    if scale_bar:
+        d = _as_disparity_array(disparity)
+        valid = ~np.isnan(d)
+        low = float(min_disp) if min_disp is not None else (float(d[valid].min()) if valid.any() else 0.0)
+        high = float(max_disp) if max_disp is not None else (float(d[valid].max()) if valid.any() else 1.0)
+        rgb = with_scale_bar(rgb, min_disp=low, max_disp=high)
     ok, buffer = cv2.imencode(".png", cv2.cvtColor(rgb, cv2.COLOR_RGB2BGR))
     if not ok:
         raise OutputError("OpenCV could not encode the preview PNG", path=str(path))

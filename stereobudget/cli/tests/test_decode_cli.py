@@ -201,7 +201,7 @@ def test_outputs_are_protected(pair, tmp_path):
 
 @pytest.mark.parametrize("args, fragment", [
     (["--max-disp", MAX_DISP], "nothing to write"),
-    (["--disparity", "d.pfm"], "--max-disp"),
+    (["--max-disp", "wide", "--disparity", "d.pfm"], "--max-disp"),
     (["--max-disp", MAX_DISP, "--disparity", "d.pfm", "--min-disp", MAX_DISP], "greater than"),
     (["--max-disp", MAX_DISP, "--disparity", "d.xyz"], "unknown disparity format"),
 ])

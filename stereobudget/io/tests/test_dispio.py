@@ -155,8 +155,27 @@ def test_preview_colours_and_invalid_black(tmp_path):
     np.testing.assert_array_equal(disparity_preview(d * 3, min_disp=0, max_disp=10)[0, -1], rgb[0, -1])
 
     path = tmp_path / "p.png"
-    write_preview(path, d, min_disp=0, max_disp=10)
+    write_preview(path, d, min_disp=0, max_disp=10, scale_bar=False)
     on_disk = cv2.cvtColor(cv2.imread(str(path), cv2.IMREAD_COLOR), cv2.COLOR_BGR2RGB)
     np.testing.assert_array_equal(on_disk, rgb)
     with pytest.raises(OutputError, match="exists"):
         write_preview(path, d, min_disp=None, max_disp=None)
+
+
+def test_preview_carries_a_colour_bar_with_its_scale(tmp_path):
+    from stereobudget.io import SCALE_BAR_MIN_WIDTH, with_scale_bar
+    d = np.tile(np.linspace(0, 60, 200, dtype=np.float32), (100, 1))
+    path = tmp_path / "p.png"
+    write_preview(path, d, min_disp=0, max_disp=60)
+    on_disk = cv2.cvtColor(cv2.imread(str(path), cv2.IMREAD_COLOR), cv2.COLOR_BGR2RGB)
+    plain = disparity_preview(d, min_disp=0, max_disp=60)
+    assert on_disk.shape[1] == 200 and on_disk.shape[0] > 100
+    np.testing.assert_array_equal(on_disk[:100], plain)
+    # The bar under the map runs through the same colours, left to right.
+    bar = on_disk[101]
+    np.testing.assert_allclose(bar[0], plain[0, 0], atol=2)
+    np.testing.assert_allclose(bar[-1], plain[0, -1], atol=2)
+    labels = on_disk[-16:]
+    assert (labels < 128).any() and (labels == 255).mean() > 0.7      # dark text on white
+    narrow = disparity_preview(d[:, :SCALE_BAR_MIN_WIDTH - 1], min_disp=0, max_disp=60)
+    assert with_scale_bar(narrow, min_disp=0, max_disp=60) is narrow

@@ -1,0 +1,36 @@
+"""First steps of a new user, in real processes: the first-compile notice and shell completion."""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+
+
+def run(code_or_args, *, env=None, module=False):
+    args = [sys.executable, "-m", *code_or_args] if module else [sys.executable, "-c", code_or_args]
+    return subprocess.run(args, capture_output=True, text=True, timeout=300, env=dict(os.environ, **(env or {})))
+
+
+def test_empty_kernel_cache_is_announced_once(tmp_path):
+    code = ("import logging, sys; logging.basicConfig(stream=sys.stderr, format='%(message)s');"
+            "from stereobudget._kernels._first_run import announce_first_compile, kernels_cached;"
+            "print(kernels_cached()); print(announce_first_compile())")
+    fresh = run(code, env={"NUMBA_CACHE_DIR": str(tmp_path / "empty")})
+    assert fresh.returncode == 0, fresh.stderr
+    assert fresh.stdout.split() == ["False", "True"]
+    lines = fresh.stderr.splitlines()
+    assert len(lines) == 1 and lines[0].startswith("compiling kernels, first run only, ~") and lines[0].endswith(" s")
+
+
+def test_bash_completion_of_options_and_choices():
+    env = {"_SB_DECODE_COMPLETE": "bash_source"}
+    script = run(["stereobudget.cli.decode"], module=True, env=env)
+    assert script.returncode == 0 and "_sb_decode_completion" in script.stdout
+    # What bash asks while the user types `sb-decode --max<TAB>` and `--method <TAB>`.
+    options = run(["stereobudget.cli.decode"], module=True,
+                  env={"_SB_DECODE_COMPLETE": "bash_complete", "COMP_WORDS": "sb-decode --max", "COMP_CWORD": "1"})
+    assert "plain,--max-disp" in options.stdout.splitlines()
+    methods = run(["stereobudget.cli.decode"], module=True,
+                  env={"_SB_DECODE_COMPLETE": "bash_complete", "COMP_WORDS": "sb-decode --method ", "COMP_CWORD": "2"})
+    assert [line.split(",")[1] for line in methods.stdout.splitlines()] == ["hybrid", "sparse", "downsample", "full"]
