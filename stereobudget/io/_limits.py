@@ -118,10 +118,11 @@ def estimate_decode_memory(height: int, width: int, num_disp: int, method: str, 
     method            at most alive at once             where
     ================  ================================  ====================================
     ``sparse``        ``max(3 G, 2 G + V)``             grid blur; grids + sliced volume
-    ``hybrid``        ``max(3 G, 2 G + 2 V, 3 V)``      grid blur; the sliced grids while
-                                                        the cost kernel writes the volumes
-                                                        (the tree route); the cost and the
-                                                        two semi-global sums (the default)
+    ``hybrid``        ``max(3 G, 2 G + 3 V)``           grid blur; the cost and the two
+                                                        semi-global sums while the sliced
+                                                        grids wait in the spare pool for
+                                                        the next decode (the tree route
+                                                        needs 2 G + 2 V)
     ``full``          ``2 V + V / 4``                   the uint8 census volume and the two
                                                         float32 sums of the semi-global
                                                         paths (from above, from below)
@@ -167,8 +168,7 @@ def estimate_decode_memory(height: int, width: int, num_disp: int, method: str, 
                                      sigma_s_per_stride=sigma_s_per_stride, sigma_r=sigma_r,
                                      cells_per_sigma_s=cells_per_sigma_s, cells_per_sigma_r=cells_per_sigma_r)
         # Hybrid slices its grids inside the kernel that writes both views' volumes.
-        peak = max(3 * grid, 2 * grid + volume) if method == "sparse" else max(3 * grid, 2 * grid + 2 * volume,
-                                                                              3 * volume)
+        peak = max(3 * grid, 2 * grid + (volume if method == "sparse" else 3 * volume))
     elif method == "full":
         peak = 2 * volume + volume // 4
     elif method == "downsample":

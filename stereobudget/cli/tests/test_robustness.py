@@ -679,6 +679,9 @@ def test_sigint_sigterm_mid_decode_leave_old_or_complete_outputs(kill_inputs, tm
                 continue
             if name == "d.pfm":
                 assert _pfm_ok(out / name, (h, w))
+            elif name == "p.png":              # the map, with its colour bar below
+                shape = _png_shape(out / name)
+                assert shape is not None and shape[0] > h and shape[1:] == (w, 3)
             else:
                 assert _png_shape(out / name) == (h, w, 3)
         if proc.returncode == 0:
