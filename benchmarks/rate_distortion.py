@@ -4,9 +4,10 @@ For each Middlebury scene the budget is the size of today's raw stride-5 sample 
 Rows, each with its file bytes, bits per image pixel, bad-pixel % (error > 1, nonocc)
 and the camera's encoder CPU time (the fastest of three runs, one thread):
 
-* ``raw s5`` -- the budget itself; ``raw s3`` and ``lossless s4`` -- denser grids (their
-  own bytes, the first above the budget);
-* ``size`` -- ``sb-encode --size BUDGET`` (raw or lossless, the densest that fits);
+* ``raw s5`` -- the budget itself; ``raw s3``, ``lossless s4`` (8 and 7 bits), ``jxl s3
+  q90`` -- denser grids at their own bytes;
+* ``size`` -- ``sb-encode --size BUDGET`` (raw, or lossless keeping 8 to 6 bits: the
+  densest that fits);
 * ``size jxl`` -- ``sb-encode --size BUDGET --codec jxl`` (lossy allowed);
 * ``AVIF+SGBM`` -- AVIF (speed 6) of the whole right image at the highest quality
   within the budget, decoded, then OpenCV SGBM 3WAY on the full pair.
@@ -106,6 +107,8 @@ def evaluate(scene, log=print):
         "raw s5": sample_file(right, 5),
         "raw s3": sample_file(right, 3),
         "lossless s4": sample_file(right, 4, codec="lossless"),
+        "lossless s4 7 bits": sample_file(right, 4, codec="lossless", value_bits=7),
+        "jxl s3 q90": sample_file(right, 3, codec="jxl", quality=90),
         "size": budget_file(right, budget),
         "size jxl": budget_file(right, budget, codec="jxl"),
     }
