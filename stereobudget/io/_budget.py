@@ -1,8 +1,9 @@
 """A byte budget for the sample file, as ``cwebp -size`` does: the densest grid that fits.
 
-:func:`fit_budget` tries square grid strides from the densest and, at each stride, the
-allowed codings from the most faithful; the first file that fits is the answer.  Every
-candidate is really encoded and measured, so the file never exceeds the budget.
+:func:`fit_budget` starts from the densest square grid whose raw file fits and tries
+denser grids while one of the allowed codings fits, keeping the most faithful coding
+that fits at the densest such stride.  Every candidate is really encoded and measured,
+so the file never exceeds the budget.
 """
 
 from __future__ import annotations
@@ -15,14 +16,16 @@ from ._codecs import LOSSY_CODECS, resolve_codec
 #: The floor keeps the search from trading all fidelity for density.
 BUDGET_QUALITIES = (95, 90, 85, 80, 75)
 #: Low bits a lossless coding may drop, one at a time, when ``--size`` comes without
-#: ``--bits``: on Teddy and Cones at the raw stride-5 bytes, stride 4 with 7 bits decodes
-#: with 8.2 / 6.4 % bad pixels against 10.8 / 7.1 % for raw stride 5 (benchmarks/rate_distortion.py).
+#: ``--bits``: at the raw stride-5 bytes, stride 4 with 7 bits (Teddy) or 6 bits (Cones)
+#: decodes with 8.2 / 6.5 % bad pixels against 10.8 / 7.1 % for raw stride 5
+#: (Hybrid, benchmarks/rate_distortion.py).
 BUDGET_DROPPED_BITS = 2
 #: Largest stride tried.
 MAX_BUDGET_STRIDE = 64
-#: No coding is assumed to shrink a payload more than this, so strides whose raw payload
-#: is larger than ``budget * _MAX_RATIO`` are not even tried (saves encoder time only).
-_MAX_RATIO = 20
+
+
+def grid(stride: int) -> SamplingPattern:
+    return SamplingPattern(kind="grid", stride_x=stride, stride_y=stride)
 
 
 def fit_budget(image, *, budget: int, codec: str | None = None, value_bits: int | None = None,
@@ -80,24 +83,38 @@ def fit_budget(image, *, budget: int, codec: str | None = None, value_bits: int 
     for name, b, q in codings:
         check_coding(codec=name, value_bits=b, quality=q or DEFAULT_QUALITY, dtype_bytes=value_bytes,
                      pattern_kind="grid", channels=channels)
-    if ("raw", bits, None) not in codings:
-        codings.append(("raw", bits, None))    # what a coded payload falls back to anyway
-    for stride in range(1, MAX_BUDGET_STRIDE + 1):
-        pattern = SamplingPattern(kind="grid", stride_x=stride, stride_y=stride)
-        n = sample_count(pattern, height, width) * channels
-        if -(-n * bits // 8) > _MAX_RATIO * budget:
-            continue
-        sample_set = None
-        for name, b, q in codings:
-            if name == "raw" and HEADER_SIZE_V1_0 + -(-n * b // 8) > budget:
-                continue   # its size is known without encoding
-            if sample_set is None:
-                sample_set = encode_image(image, pattern=pattern, channel_order=channel_order)
+    def raw_size(stride, b):
+        n = sample_count(SamplingPattern(kind="grid", stride_x=stride, stride_y=stride), height, width)
+        return HEADER_SIZE_V1_0 + -(-n * channels * b // 8)
+
+    # The sparsest grid is where the search starts: the densest stride whose raw file
+    # fits (its size is known without encoding), or the sparsest stride tried.
+    start = next((s for s in range(1, MAX_BUDGET_STRIDE + 1) if raw_size(s, bits) <= budget), None)
+    best = None
+    if start is not None:
+        sample_set = encode_image(image, pattern=grid(start), channel_order=channel_order)
+        best = (sample_set,) + _coded_file(sample_set, codec="raw", value_bits=value_bits, quality=None)
+    coded = [c for c in codings if c[0] != "raw"]
+    # Then denser grids while a coding fits.  At each stride the leanest coding is tried
+    # first, then more faithful ones while they fit: a file grows with the stride's
+    # density and with fidelity, so the first stride where even the leanest coding is
+    # over budget ends the search (every candidate is measured, never estimated).
+    for stride in range((start or MAX_BUDGET_STRIDE + 1) - 1, 0, -1):
+        sample_set = encode_image(image, pattern=grid(stride), channel_order=channel_order)
+        fitting = None
+        for name, b, q in reversed(coded):
             try:
-                data, used, kept_bits, used_q = _coded_file(sample_set, codec=name, value_bits=b, quality=q)
+                found = _coded_file(sample_set, codec=name, value_bits=b, quality=q)
             except OptionError:
                 continue   # e.g. a lattice too large for WebP: try the next coding
-            if len(data) <= budget:
-                return sample_set, data, {"codec": used, "value_bits": kept_bits, "quality": used_q}
+            if len(found[0]) > budget:
+                break
+            fitting = (sample_set,) + found
+        if fitting is None:
+            break
+        best = fitting
+    if best is not None:
+        sample_set, data, used, kept_bits, used_q = best
+        return sample_set, data, {"codec": used, "value_bits": kept_bits, "quality": used_q}
     raise OptionError(f"no grid up to stride {MAX_BUDGET_STRIDE} fits in {budget} bytes for a "
                       f"{width}x{height} image (a file has an {HEADER_SIZE_V1_0}-byte header)")
