@@ -80,9 +80,17 @@ def fit_budget(image, *, budget: int, codec: str | None = None, value_bits: int 
             codings.append((name, bits, None))
         else:
             codings += [(name, b, None) for b in range(bits, max(bits - BUDGET_DROPPED_BITS, 1) - 1, -1)]
+    usable = []
     for name, b, q in codings:
-        check_coding(codec=name, value_bits=b, quality=q or DEFAULT_QUALITY, dtype_bytes=value_bytes,
-                     pattern_kind="grid", channels=channels)
+        try:
+            check_coding(codec=name, value_bits=b, quality=q or DEFAULT_QUALITY, dtype_bytes=value_bytes,
+                         pattern_kind="grid", channels=channels)
+        except OptionError:
+            if codec:
+                raise
+            continue   # the default search skips what cannot apply (WebP on 16 bits)
+        usable.append((name, b, q))
+    codings = usable
     def raw_size(stride, b):
         n = sample_count(SamplingPattern(kind="grid", stride_x=stride, stride_y=stride), height, width)
         return HEADER_SIZE_V1_0 + -(-n * channels * b // 8)

@@ -282,9 +282,15 @@ def decode_payload(data, *, codec: str, value_bits: int, count: int, channels: i
         if codec == "deflate":
             image = _inflate(data, rows=rows, cols=cols, channels=channels, dtype=dtype, name=name)
         elif codec in ("webp", "webp_lossless"):
+            size = webp_size(data)
+            if size != (cols, rows):
+                # Checked before decoding: the decoder would allocate what the stream claims.
+                raise CorruptPayloadError(f"{codec} payload is {'not a WebP image' if size is None else 'a %dx%d image' % size}"
+                                          f", expected the {cols}x{rows} lattice", path=name)
             image = _webp_decode(data, channels=channels, channel_order=channel_order)
         else:
-            image = _jxl_decode(data, channels=channels, channel_order=channel_order)
+            image = _jxl_decode(data, rows=rows, cols=cols, channels=channels, dtype=dtype,
+                                channel_order=channel_order)
     except CorruptPayloadError:
         raise
     except (ImportError, ModuleNotFoundError):
@@ -334,10 +340,30 @@ def _webp_decode(data, *, channels: int, channel_order: str):
     return image if channel_order == "bgr" else image[:, :, ::-1]
 
 
-def _jxl_decode(data, *, channels: int, channel_order: str):
-    import imagecodecs
+def webp_size(data) -> tuple[int, int] | None:
+    """(width, height) a WebP stream declares (simple lossy, lossless or extended), else None."""
+    b = bytes(data[:30])
+    if len(b) < 30 or b[:4] != b"RIFF" or b[8:12] != b"WEBP":
+        return None
+    chunk = b[12:16]
+    if chunk == b"VP8 " and b[23:26] == b"\x9d\x01\x2a":
+        return int.from_bytes(b[26:28], "little") & 0x3FFF, int.from_bytes(b[28:30], "little") & 0x3FFF
+    if chunk == b"VP8L" and b[20] == 0x2F:
+        bits = int.from_bytes(b[21:25], "little")
+        return (bits & 0x3FFF) + 1, ((bits >> 14) & 0x3FFF) + 1
+    if chunk == b"VP8X":
+        return int.from_bytes(b[24:27], "little") + 1, int.from_bytes(b[27:30], "little") + 1
+    return None
 
-    image = imagecodecs.jpegxl_decode(bytes(data))
+
+def _jxl_decode(data, *, rows: int, cols: int, channels: int, dtype, channel_order: str):
+    import imagecodecs
+    import numpy as np
+
+    # Into an array of the expected lattice: the decoder refuses another size or type
+    # from the stream's header, before allocating what a damaged stream may claim.
+    out = np.empty((rows, cols) if channels == 1 else (rows, cols, channels), dtype)
+    image = imagecodecs.jpegxl_decode(bytes(data), out=out)
     if image.ndim == 2:
         image = image[:, :, None]
     if image.ndim == 3 and image.shape[2] == 3 and channel_order == "bgr":

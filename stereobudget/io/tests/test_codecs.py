@@ -224,6 +224,24 @@ def test_damaged_coded_payloads_are_corrupt_payloads(codec):
             read_samples(with_coding(data, payload=bytes(payload[:cut])))
 
 
+@pytest.mark.parametrize("codec", ["webp_lossless", "webp", "jxl_lossless", "jxl"])
+def test_an_image_of_another_size_is_refused_before_it_is_decoded(codec):
+    if not codec_available(codec):
+        pytest.skip("imagecodecs with JPEG XL is not installed")
+    img = smooth_image()
+    data = write_samples(encode_image(img, pattern=grid(3)), codec=codec)
+    other = write_samples(encode_image(img, pattern=grid(4)), codec=codec)[HEADER:]
+    with pytest.raises(CorruptPayloadError, match="a 21x16 image, expected the 28x21 lattice|out.shape"):
+        read_samples(with_coding(data, payload=other, crc=0))
+
+
+def test_the_default_budget_search_skips_codings_that_cannot_apply(monkeypatch):
+    monkeypatch.setattr(_codecs, "have_jxl", lambda: False)       # lossless = WebP: 8 bits only
+    img = smooth_image(h=60, w=80, dtype=np.uint16)
+    ss, data, coding = fit_budget(img, budget=3000)
+    assert len(data) <= 3000 and coding["codec"] == "raw"
+
+
 def test_coding_block_errors_have_their_classes():
     data = coded_files()["deflate"]
     with pytest.raises(UnsupportedVersionError, match="payload codec 9"):
