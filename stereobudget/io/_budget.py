@@ -17,8 +17,8 @@ from ._codecs import LOSSY_CODECS, resolve_codec
 BUDGET_QUALITIES = (95, 90, 85, 80, 75)
 #: Low bits a lossless coding may drop, one at a time, when ``--size`` comes without
 #: ``--bits``: at the raw stride-5 bytes, stride 4 with 7 bits (Teddy) or 6 bits (Cones)
-#: decodes with 8.2 / 6.5 % bad pixels against 10.8 / 7.1 % for raw stride 5
-#: (Hybrid, benchmarks/rate_distortion.py).
+#: decodes with 8.4 / 7.1 % bad pixels against 11.3 / 7.9 % for raw stride 5
+#: (Hybrid, docs/results.md).
 BUDGET_DROPPED_BITS = 2
 #: Largest stride tried.
 MAX_BUDGET_STRIDE = 64
