@@ -13,6 +13,7 @@ and the camera's encoder CPU time (the fastest of three runs, one thread):
   within the budget, decoded, then OpenCV SGBM 3WAY on the full pair.
 
     python benchmarks/rate_distortion.py --scenes teddy,cones
+    python benchmarks/rate_distortion.py --scenes "" --realdev Art,Adirondack
 
 Decodes are the library's Hybrid (``stereobudget.decode``); the first one compiles the
 numba kernels (minutes), so its time is not reported.
@@ -21,8 +22,11 @@ numba kernels (minutes), so its time is not reported.
 from __future__ import annotations
 
 import argparse
+import math
 import sys
 import time
+from dataclasses import dataclass
+from pathlib import Path
 
 import cv2
 import numpy as np
@@ -35,6 +39,32 @@ from stereobudget.sampling import SamplingPattern
 from middlebury import load_scene
 
 REPEATS = 3
+REALDEV = Path(__file__).resolve().parents[2] / "shared" / "data" / "realdev"
+
+
+@dataclass
+class RealScene:
+    """A realdev scene in the shape :func:`evaluate` reads (nonocc = the occlusion mask, else valid GT)."""
+
+    name: str
+    left: np.ndarray
+    right: np.ndarray
+    gt: np.ndarray
+    masks: dict
+    max_disp: int
+
+
+def load_realdev(name, folder=REALDEV):
+    folder = Path(folder) / name
+    left = cv2.cvtColor(cv2.imread(str(folder / "left.png"), cv2.IMREAD_COLOR), cv2.COLOR_BGR2RGB)
+    right = cv2.cvtColor(cv2.imread(str(folder / "right.png"), cv2.IMREAD_COLOR), cv2.COLOR_BGR2RGB)
+    gt = cv2.imread(str(folder / "disp_left.png"), cv2.IMREAD_UNCHANGED).astype(np.float32) / 256
+    valid = gt > 0
+    gt[~valid] = np.nan
+    nonocc = folder / "nonocc.png"
+    mask = cv2.imread(str(nonocc), cv2.IMREAD_UNCHANGED) == 255 if nonocc.exists() else valid
+    return RealScene(name=name, left=left, right=right, gt=gt, masks={"nonocc": mask},
+                     max_disp=int(math.ceil(float(np.nanmax(gt)))) + 2)
 
 
 def cpu_ms(func):
@@ -130,12 +160,15 @@ def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--scenes", default="teddy,cones", help="comma-separated Middlebury scenes")
     parser.add_argument("--data-dir", default=None, help="Middlebury folder (default: ../shared/data/middlebury)")
+    parser.add_argument("--realdev", default="", help="comma-separated realdev scenes (../shared/data/realdev)")
     args = parser.parse_args(argv)
     cv2.setNumThreads(1)
     print("| scene | row | stride | codec | bytes | bits/pixel | bad % nonocc | encoder CPU ms |")
     print("|---|---|---:|---|---:|---:|---:|---:|")
-    for name in args.scenes.split(","):
-        scene = load_scene(args.data_dir, name)
+    scenes = [(n, lambda n=n: load_scene(args.data_dir, n)) for n in args.scenes.split(",") if n]
+    scenes += [(n, lambda n=n: load_realdev(n)) for n in args.realdev.split(",") if n]
+    for name, load in scenes:
+        scene = load()
         budget, rows = evaluate(scene, log=lambda text: print(text, file=sys.stderr))
         for r in rows:
             print(f"| {name} | {r['row']} | {r['stride']} | {r['codec']} | {r['bytes']} | {r['bpp']:.3f} | "
