@@ -51,7 +51,8 @@ _FIELDS = container._FIELDS           # the 1.0 header layout after the magic
 _NAMES = container._FIELD_NAMES
 HEADER = container.HEADER_SIZE_V1_0
 
-#: (name, pattern, stride, channels, dtype, channel order) of the base files.
+#: (name, pattern, stride, channels, dtype, channel order[, coding]) of the base files;
+#: the coding is passed to write_samples (1.1 coded payloads).
 BASES = (
     ("grid3_gray8", "grid", 3, 1, np.uint8, "gray"),
     ("grid4_rgb8", "grid", 4, 3, np.uint8, "rgb"),
@@ -61,6 +62,13 @@ BASES = (
     ("adaptive3_rgb8", "adaptive_fps", 3, 3, np.uint8, "rgb"),
     ("downsample4_rgb8", "downsample", 4, 3, np.uint8, "rgb"),
     ("full_gray8", "grid", 1, 1, np.uint8, "gray"),
+    ("grid3_rgb8_deflate", "grid", 3, 3, np.uint8, "rgb", {"codec": "deflate"}),
+    ("grid2_bgr8_webpll", "grid", 2, 3, np.uint8, "bgr", {"codec": "webp_lossless"}),
+    ("grid3_rgb8_webp", "grid", 3, 3, np.uint8, "rgb", {"codec": "webp", "quality": 70}),
+    ("grid2_gray16_jxlll", "grid", 2, 1, np.uint16, "gray", {"codec": "jxl_lossless"}),
+    ("downsample3_rgb8_jxl", "downsample", 3, 3, np.uint8, "rgb", {"codec": "jxl"}),
+    ("fps3_rgb8_bits5", "fps", 3, 3, np.uint8, "rgb", {"value_bits": 5}),
+    ("grid2_rgb16_bits11", "grid", 2, 3, np.uint16, "rgb", {"value_bits": 11}),
 )
 WIDTH, HEIGHT, MAX_DISP = 40, 30, 6
 
@@ -85,14 +93,19 @@ def make_corpus(workdir: Path, seed: int = 0) -> list[dict]:
 
     rng = np.random.default_rng(seed)
     corpus = []
-    for name, kind, stride, channels, dtype, order in BASES:
+    from stereobudget.io import have_jxl
+
+    for name, kind, stride, channels, dtype, order, *coding in BASES:
+        coding = coding[0] if coding else {}
+        if str(coding.get("codec", "")).startswith("jxl") and not have_jxl():
+            continue
         wide = _texture(rng, HEIGHT, WIDTH + 3, channels, dtype)
         left, right = wide[:, 3:], wide[:, :-3]          # constant disparity 3
         pattern = SamplingPattern(kind=kind, stride_x=stride, stride_y=stride, seed=7 if kind != "grid"
                                   and kind != "downsample" else 0)
         stored = right[:, :, ::-1] if order == "bgr" else right
         sbs = write_samples(encode_image(np.ascontiguousarray(stored), pattern=pattern,
-                                         channel_order=order))
+                                         channel_order=order), **coding)
         left_path = workdir / f"{name}_left.png"
         write_image(left_path, left, channel_order="gray" if channels == 1 else "rgb", overwrite=True)
         corpus.append({"name": name, "sbs": sbs, "left": str(left_path)})
@@ -223,6 +236,19 @@ def random_field(rng, base, other):
     name = rng.choice([n for n in _NAMES if n not in ("pattern_reserved",)])
     value = rng.choice([0, 1, 2, 3, 4, 5, 255, 256, 65535, 2 ** 32 - 1, 2 ** 63, rng.getrandbits(64)])
     return with_fields(base, fix_crc=rng.random() < 0.9, **{name: value})
+
+
+@mutation
+def coding_block(rng, base, other):
+    """The 1.1 coding block (codec, value_bits, quality, values CRC) rewritten, header CRC fixed."""
+    block = bytearray(base[40:56])
+    for _ in range(rng.randint(1, 3)):
+        where = rng.choice([0, 1, 2, 3, 4, 8])
+        block[where] = rng.choice([0, 1, 2, 3, 4, 5, 6, 8, 9, 12, 16, 17, 90, 100, 101, 255, rng.getrandbits(8)])
+    data = with_fields(base, version_minor=rng.choice([1, 1, 1, 0, 2]), fix_crc=False)
+    head = bytearray(data[:HEADER - 4])
+    head[40:56] = block
+    return bytes(head) + struct.pack("<I", zlib.crc32(head) & 0xFFFFFFFF) + base[HEADER:]
 
 
 @mutation

@@ -43,7 +43,7 @@ class TruncatedFileError(SampleFileError):
 
 
 class UnsupportedVersionError(SampleFileError):
-    """The major version is one this reader does not understand."""
+    """The major version, or the payload codec (1.1), is one this reader cannot decode."""
 
     exit_code = 6
 
@@ -55,7 +55,7 @@ class CorruptHeaderError(SampleFileError):
 
 
 class CorruptPayloadError(SampleFileError):
-    """Payload length differs from what the header implies, or the payload CRC does not match."""
+    """Payload length differs from what the header implies, the payload CRC does not match, or a coded payload does not decode."""
 
     exit_code = 8
 

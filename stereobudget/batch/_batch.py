@@ -408,6 +408,9 @@ class EncodeJob:
         Replace existing outputs (in a batch: redo even up-to-date jobs).
     batch : bool
         Batch semantics: skip up-to-date outputs, replace stale ones, create folders.
+    coding : dict, optional
+        Keyword arguments of :func:`stereobudget.io.encode_file` choosing the payload
+        coding (``codec``, ``value_bits``, ``quality``, ``size``, ``size_fraction``).
     """
 
     source: str
@@ -417,6 +420,7 @@ class EncodeJob:
     pix_fmt: str | None = None
     overwrite: bool = False
     batch: bool = False
+    coding: dict | None = None
 
     @property
     def label(self) -> str:
@@ -452,7 +456,7 @@ def encode_job(job: EncodeJob) -> dict:
         # Output and record together (see decode_file); an encode takes milliseconds.
         with interrupts_deferred():
             report = encode_file(job.source, job.output, pattern=job.pattern, raw_size=job.raw_size,
-                                 pix_fmt=job.pix_fmt, overwrite=overwrite)
+                                 pix_fmt=job.pix_fmt, overwrite=overwrite, **(job.coding or {}))
             if recipe is not None:
                 write_recipes([job.output], recipe)
         result.update(report.as_dict())
@@ -712,7 +716,8 @@ def decode_file(job: DecodeJob, *, recipe: dict | None = None) -> dict:
         "channels": 1 if left.ndim == 2 else int(left.shape[2]), "dtype": str(left.dtype),
         "sample_count": int(samples.values.shape[0]), "epsilon": samples.epsilon,
         "pattern": samples.pattern.kind, "stride_x": samples.pattern.stride_x,
-        "stride_y": samples.pattern.stride_y,
+        "stride_y": samples.pattern.stride_y, "codec": samples.codec,
+        "value_bits": samples.value_bits or 8 * samples.values.dtype.itemsize,
         "method": result.method, "min_disp": int(min_disp), "max_disp": int(max_disp),
         "range_source": "estimated" if auto else "given", "range_estimate": estimate.summary(),
         "psnr_at_samples": psnr if math.isfinite(psnr) else None,
@@ -736,7 +741,7 @@ def _encode_recipe(job: EncodeJob) -> dict:
     from dataclasses import asdict
     return make_recipe("sb-encode", [job.source], {
         "pattern": asdict(job.pattern), "raw_size": list(job.raw_size) if job.raw_size else None,
-        "pix_fmt": job.pix_fmt})
+        "pix_fmt": job.pix_fmt, "coding": dict(job.coding or {})})
 
 
 def _decode_recipe(job: DecodeJob) -> dict:

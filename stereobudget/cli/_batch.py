@@ -90,7 +90,7 @@ def run_batch(jobs: list, fn, *, workers: int | None, scheduler: str | None, as_
         sys.exit(1)
 
 
-def plan_encode(images, output: str, *, pattern, raw_size, pix_fmt, overwrite: bool):
+def plan_encode(images, output: str, *, pattern, raw_size, pix_fmt, overwrite: bool, coding: dict | None = None):
     """``(single_input, jobs)``: the one input of a single-file run, or the batch's jobs.
 
     A single run (one input after expansion and an ``-o`` without template) keeps the
@@ -116,7 +116,7 @@ def plan_encode(images, output: str, *, pattern, raw_size, pix_fmt, overwrite: b
     if "-" in inputs:
         raise OptionError("'-' (standard input) works with a single input only")
     jobs = [EncodeJob(source=name, output=expand_template(output, name, option="-o"), pattern=pattern,
-                      raw_size=raw_size, pix_fmt=pix_fmt, overwrite=overwrite, batch=True)
+                      raw_size=raw_size, pix_fmt=pix_fmt, overwrite=overwrite, batch=True, coding=coding)
             for name in inputs]
     check_distinct_outputs(jobs, key=lambda job: [job.output])
     return None, jobs

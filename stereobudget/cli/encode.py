@@ -56,6 +56,40 @@ def build_pattern(*, pattern: str, stride: int, stride_x: int | None, stride_y: 
                            seed=seed or 0)
 
 
+def build_coding(*, codec: str, value_bits: int | None, quality: int | None, size: str | None,
+                 size_fraction: float | None, pattern: str) -> dict:
+    """Keyword arguments of :func:`stereobudget.io.encode_file` for sb-encode's coding options.
+
+    Empty for the default raw coding, so that path stays the plain (numpy-free) one.
+
+    Raises
+    ------
+    OptionError
+        --size with --epsilon, --quality without a lossy codec, a budget with another
+        pattern than grid, an unparsable size.
+    """
+    coding = {}
+    if size is not None and size_fraction is not None:
+        raise OptionError("give --size or --epsilon, not both")
+    if quality is not None and codec not in ("webp", "jxl"):
+        raise OptionError(f"--quality applies to --codec webp or jxl, not {codec}")
+    if (size is not None or size_fraction is not None) and pattern != "grid":
+        raise OptionError(f"--size / --epsilon choose a grid stride: they need --pattern grid, not {pattern}")
+    if size is not None:
+        if not size.strip().isdigit() or int(size) < 1:
+            raise OptionError(f"--size must be a positive number of bytes, got {size!r}")
+        coding["size"] = int(size)
+    if size_fraction is not None:
+        coding["size_fraction"] = size_fraction
+    if codec != "raw":
+        coding["codec"] = codec
+    if value_bits is not None:
+        coding["value_bits"] = value_bits
+    if quality is not None:
+        coding["quality"] = quality
+    return coding
+
+
 def _show_info(path, *, verify: bool) -> None:
     from stereobudget.io import probe
     common.emit_json(probe(path, verify_payload=verify))
@@ -83,6 +117,22 @@ def _show_info(path, *, verify: bool) -> None:
               help="Input is one headerless frame of this size (needs --pix-fmt).")
 @click.option("--pix-fmt", type=click.Choice(_RAW_PIX_FMTS), default=None,
               help="Pixel format of a --raw frame.")
+@click.option("--codec", type=click.Choice(["raw", "lossless", "deflate", "webp_lossless", "jxl_lossless",
+                                             "webp", "jxl"]),
+              default="raw", show_default=True,
+              help="Payload coding: raw copies the values (no computation); lossless = JPEG XL "
+                   "lossless (WebP lossless without imagecodecs); webp / jxl are lossy (see "
+                   "docs/format.md).  Image codecs need --pattern grid or downsample.")
+@click.option("--bits", "value_bits", type=click.IntRange(1, 16), default=None,
+              help="Keep only the top N bits of every value (any codec; costs nothing).  [default: all]")
+@click.option("--quality", type=click.IntRange(1, 100), default=None,
+              help="Quality of --codec webp / jxl.  [default: 90; with --size the best that fits]")
+@click.option("--size", "size_bytes", metavar="BYTES", default=None, type=str,
+              help="Byte budget of the file (e.g. 20000): the densest grid stride and coding "
+                   "that fit (raw, or lossless keeping 8 to 6 bits, unless --codec / --bits say "
+                   "otherwise); never exceeded.")
+@click.option("--epsilon", "size_fraction", type=click.FloatRange(0, 1, min_open=True), default=None,
+              help="Byte budget as a fraction of the raw image bytes (W x H x channels x bytes).")
 @click.option("--info", "info_file", metavar="FILE.sbs", default=None,
               help="Validate a sample file and print its header as one JSON line; no encoding.")
 @click.option("--header-only", is_flag=True,
@@ -94,7 +144,8 @@ def _show_info(path, *, verify: bool) -> None:
 @common.version_option
 @common.handle_errors
 def encode_command(images, output, stride, stride_x, stride_y, offset, pattern, seed, raw_size,
-                   pix_fmt, info_file, header_only, jobs, scheduler, overwrite, as_json):
+                   pix_fmt, codec, value_bits, quality, size_bytes, size_fraction, info_file, header_only,
+                   jobs, scheduler, overwrite, as_json):
     """Sample RIGHT_IMAGE ('-' = stdin) on a sparse grid and write the .sbs sample file.
 
     \b
@@ -103,6 +154,8 @@ def encode_command(images, output, stride, stride_x, stride_y, offset, pattern, 
       sb-encode right.png -o right.sbs --stride 4      # epsilon = 6.25 %
       sb-encode - -o - < right.png > right.sbs         # stdin to stdout
       sb-encode frame.raw --raw 640x480 --pix-fmt bgr24 -o frame.sbs
+      sb-encode right.png -o right.sbs --stride 4 --codec lossless
+      sb-encode right.png -o right.sbs --size 20000    # densest grid in 20000 bytes
       sb-encode --info right.sbs                       # header as JSON
       sb-encode 'cam_r/*.png' -o 'out/{stem}.sbs' -j 2 # many files (quoted glob)
 
@@ -135,9 +188,11 @@ def encode_command(images, output, stride, stride_x, stride_y, offset, pattern, 
             raise OptionError(f"--raw: {exc}") from None
     sampling = build_pattern(pattern=pattern, stride=stride, stride_x=stride_x, stride_y=stride_y,
                              offset=offset, seed=seed)
+    coding = build_coding(codec=codec, value_bits=value_bits, quality=quality, size=size_bytes,
+                          size_fraction=size_fraction, pattern=pattern)
 
     image, batch_jobs = _batch.plan_encode(images, output, pattern=sampling, raw_size=size, pix_fmt=pix_fmt,
-                                           overwrite=overwrite)
+                                           overwrite=overwrite, coding=coding)
     if batch_jobs is not None:
         from stereobudget.batch import encode_job
         _batch.run_batch(batch_jobs, encode_job, workers=jobs, scheduler=scheduler, as_json=as_json)
@@ -145,12 +200,13 @@ def encode_command(images, output, stride, stride_x, stride_y, offset, pattern, 
 
     from stereobudget.io import encode_file
     report = encode_file(image, output, pattern=sampling, raw_size=size, pix_fmt=pix_fmt,
-                         overwrite=overwrite)
+                         overwrite=overwrite, **coding)
     log.info("%s -> %s: %dx%d %s %s, %s %dx%d, %d samples, epsilon %.2f %%, %d bytes "
-             "(header %d + payload %d)", report.source, report.output, report.width, report.height,
-             report.channel_order, report.dtype, report.pattern, report.stride_x, report.stride_y,
-             report.sample_count, 100 * report.epsilon, report.file_size, report.header_bytes,
-             report.payload_bytes)
+             "(header %d + payload %d, %s, %d bits, %.3f bits per pixel)", report.source, report.output,
+             report.width, report.height, report.channel_order, report.dtype, report.pattern,
+             report.stride_x, report.stride_y, report.sample_count, 100 * report.epsilon, report.file_size,
+             report.header_bytes, report.payload_bytes, report.codec, report.value_bits,
+             report.bits_per_pixel)
     if as_json:
         common.emit_json(report.as_dict())
 

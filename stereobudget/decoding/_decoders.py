@@ -618,7 +618,8 @@ def _band_samples(samples: SampleSet, top: int, bottom: int):
     pattern = _replace(p, offset_y=p.offset_y + first * p.stride_y - top)
     values = samples.grid_values()[first:last].reshape(-1, samples.channels)
     return SampleSet(height=int(bottom - top), width=samples.width, channel_order=samples.channel_order,
-                     pattern=pattern, values=np.ascontiguousarray(values))
+                     pattern=pattern, values=np.ascontiguousarray(values), codec=samples.codec,
+                     value_bits=samples.value_bits, quality=samples.quality)
 
 
 class _BandSamples:

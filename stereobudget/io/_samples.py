@@ -24,6 +24,8 @@ from ._atomic import STDIO, check_output_path, display_name, read_input_bytes, w
 from ..errors import (CorruptHeaderError, CorruptPayloadError, ImageReadError, NotASampleFileError, OptionError,
                      TruncatedFileError, UnsupportedVersionError)
 from ._limits import dimension_problem
+from ._codecs import (CODEC_IDS, CODEC_NAMES, DEFAULT_QUALITY, IMAGE_CODECS, LATTICE_PATTERNS, LOSSY_CODECS,
+                      check_coding, resolve_codec)
 from ..sampling._patterns import SamplingPattern, sample_count, sample_positions, grid_shape
 
 log = logging.getLogger("stereobudget")
@@ -45,6 +47,13 @@ class SampleSet:
         Where the samples lie.
     values : ndarray, shape (n, channels), uint8 or uint16
         Sample values in transmission order (see :func:`stereobudget.sampling.sample_positions`).
+    codec : str
+        Payload codec the values came through (``raw`` unless read from a coded file).
+    value_bits : int, optional
+        Bits per value the camera kept (None = all): dropped bits come back as the
+        middle of their interval, so each value is within ``2 ** (full - value_bits - 1)``.
+    quality : int
+        Quality of a lossy codec (0 otherwise).
     """
 
     height: int
@@ -52,6 +61,9 @@ class SampleSet:
     channel_order: str
     pattern: SamplingPattern
     values: np.ndarray
+    codec: str = "raw"
+    value_bits: int | None = None
+    quality: int = 0
 
     def __post_init__(self):
         if self.channel_order not in CHANNEL_ORDERS:
@@ -71,6 +83,16 @@ class SampleSet:
     @property
     def channels(self) -> int:
         return 1 if self.channel_order == "gray" else 3
+
+    @property
+    def exact(self) -> bool:
+        """True when the values are the camera's pixels bit for bit (no lossy coding, all bits)."""
+        return self.codec not in LOSSY_CODECS and self.value_bits in (None, 8 * self.values.dtype.itemsize)
+
+    @property
+    def lossy(self) -> bool:
+        """True when a lossy codec (not just dropped bits) coded the values."""
+        return self.codec in LOSSY_CODECS
 
     @property
     def dtype(self) -> np.dtype:
@@ -142,7 +164,8 @@ def encode_image(image: np.ndarray, *, pattern: SamplingPattern, channel_order: 
 #: text-mode transfers (see docs/format.md).
 MAGIC = b"\x89SBS\r\n\x1a\n"
 VERSION_MAJOR = 1
-VERSION_MINOR = 0
+#: Newest minor version written: 1.1 adds payload coding (raw full-depth files stay 1.0).
+VERSION_MINOR = 1
 #: Size of the version-1.0 header, in bytes; later 1.x headers may be longer.
 HEADER_SIZE_V1_0 = 80
 #: Largest header_length a reader accepts (the field is a u16).
@@ -156,6 +179,10 @@ _FIELD_NAMES = ("version_major", "version_minor", "header_length", "width", "hei
                 "stride_x", "stride_y", "offset_x", "offset_y", "seed", "pattern_reserved",
                 "sample_count", "payload_length", "payload_crc32")
 assert len(MAGIC) + _FIELDS.size + 4 == HEADER_SIZE_V1_0
+# 1.1: pattern_reserved holds codec, value_bits (0 = all), quality, a zero byte, the CRC-32
+# of the kept values (0 = none: lossy codecs) and 8 zero bytes.
+_CODING = struct.Struct("<BBBBI8s")
+assert _CODING.size == 16
 
 CHANNEL_ORDER_CODES = {"gray": 0, "rgb": 1, "bgr": 2}
 #: dtype code == bytes per value: 1 = uint8, 2 = uint16 little-endian.  (``DTYPE_CODES``,
@@ -195,34 +222,83 @@ def _crc32(data) -> int:
     return zlib.crc32(data) & 0xFFFFFFFF
 
 
-def write_samples(sample_set: SampleSet) -> bytes:
-    """Serialise a :class:`SampleSet` to the ``.sbs`` format, version 1.0.
+def write_samples(sample_set: SampleSet, *, codec: str = "raw", value_bits: int | None = None,
+                  quality: int | None = None) -> bytes:
+    """Serialise a :class:`SampleSet` to the ``.sbs`` format.
+
+    Raw full-depth values give a version-1.0 file; any other coding a 1.1 file.  A coded
+    payload that is not shorter than the raw one is written raw instead (with the same
+    ``value_bits``), so coding never costs bytes.
 
     Parameters
     ----------
     sample_set : SampleSet
+    codec : str
+        ``raw`` (default, no computation), ``lossless`` (the best lossless codec
+        installed), ``deflate``, ``webp_lossless``, ``jxl_lossless``, ``webp`` or ``jxl``
+        (see :mod:`stereobudget.io._codecs`).
+    value_bits : int, optional
+        Keep only the top ``value_bits`` bits of every value (None = all).
+    quality : int, optional
+        Quality 1..100 of a lossy codec (default 90).
 
     Returns
     -------
     bytes
-        An 80-byte header followed by the payload (values in transmission order,
-        channels interleaved, uint16 little-endian).
+        An 80-byte header followed by the payload.
 
     Raises
     ------
     ValueError
         The sample set does not fit the format (size beyond the limits, stride or
         offset beyond 65535, seed outside ``[0, 2**64)``).
+    OptionError
+        A coding that does not apply to these samples (an image codec on scattered
+        samples, WebP on more than 8 bits...).
     """
+    return _coded_file(sample_set, codec=codec, value_bits=value_bits, quality=quality)[0]
+
+
+def _coded_file(ss: SampleSet, *, codec: str, value_bits: int | None, quality: int | None):
+    """(file bytes, codec written, value_bits written, quality written) of :func:`write_samples`."""
     import numpy as np
 
-    ss = sample_set
+    from ._codecs import encode_payload, keep_bits, pack_bits, values_crc32
+
     _check_writable(ss.width, ss.height, ss.pattern)
-    payload = np.ascontiguousarray(ss.values).astype(ss.values.dtype.newbyteorder("<"),
-                                                     copy=False).tobytes()
-    return _pack_file(width=ss.width, height=ss.height, channel_order=ss.channel_order,
-                      dtype_code=_DTYPE_CODE_BY_NAME[ss.values.dtype.name], pattern=ss.pattern,
-                      sample_count=ss.values.shape[0], payload=payload)
+    full = 8 * ss.values.dtype.itemsize
+    bits = full if value_bits is None else int(value_bits)
+    codec = resolve_codec(codec)
+    lossy = codec in LOSSY_CODECS
+    quality = (DEFAULT_QUALITY if quality is None else int(quality)) if lossy else 0
+    check_coding(codec=codec, value_bits=bits, quality=quality, dtype_bytes=ss.values.dtype.itemsize,
+                 pattern_kind=ss.pattern.kind, channels=ss.channels)
+    dtype_code = _DTYPE_CODE_BY_NAME[ss.values.dtype.name]
+    n = ss.values.shape[0]
+    if codec == "raw" and bits == full:
+        payload = np.ascontiguousarray(ss.values).astype(ss.values.dtype.newbyteorder("<"),
+                                                         copy=False).tobytes()
+        return (_pack_file(width=ss.width, height=ss.height, channel_order=ss.channel_order,
+                           dtype_code=dtype_code, pattern=ss.pattern, sample_count=n, payload=payload),
+                "raw", bits, 0)
+    kept = keep_bits(ss.values, value_bits=bits)
+    lattice = grid_shape(ss.pattern, ss.height, ss.width) if codec in IMAGE_CODECS else None
+    payload = encode_payload(kept, codec=codec, value_bits=bits, quality=quality, lattice=lattice,
+                             channel_order=ss.channel_order)
+    raw_length = -(-n * ss.channels * bits // 8)
+    if codec != "raw" and len(payload) >= raw_length:
+        log.debug("%s payload (%d bytes) is not shorter than raw (%d): writing raw", codec,
+                  len(payload), raw_length)
+        if bits == full:
+            return _coded_file(ss, codec="raw", value_bits=None, quality=None)
+        codec, quality, payload = "raw", 0, pack_bits(kept.reshape(-1), bits)
+        lossy = False
+    coding = _CODING.pack(CODEC_IDS[codec], 0 if bits == full else bits, quality, 0,
+                          0 if lossy else values_crc32(kept), bytes(8))
+    return (_pack_file(width=ss.width, height=ss.height, channel_order=ss.channel_order,
+                       dtype_code=dtype_code, pattern=ss.pattern, sample_count=n, payload=payload,
+                       minor=1, coding=coding),
+            codec, bits, quality)
 
 
 def _check_writable(width: int, height: int, p: SamplingPattern) -> None:
@@ -239,15 +315,18 @@ def _check_writable(width: int, height: int, p: SamplingPattern) -> None:
 
 
 def _pack_file(*, width: int, height: int, channel_order: str, dtype_code: int, pattern: SamplingPattern,
-               sample_count: int, payload: bytes) -> bytes:
-    """Header + ``payload`` (already in file byte order): the whole 1.0 file, numpy-free."""
+               sample_count: int, payload: bytes, minor: int = 0, coding: bytes = bytes(16)) -> bytes:
+    """Header + ``payload`` (already in file byte order): the whole file, numpy-free.
+
+    ``minor`` 0 is a 1.0 file; 1.1 puts the 16 ``coding`` bytes in ``pattern_reserved``.
+    """
     p = pattern
     channels = 1 if channel_order == "gray" else 3
     fields = _FIELDS.pack(
-        VERSION_MAJOR, VERSION_MINOR, HEADER_SIZE_V1_0, width, height,
+        VERSION_MAJOR, minor, HEADER_SIZE_V1_0, width, height,
         channels, CHANNEL_ORDER_CODES[channel_order], dtype_code,
         PATTERN_CODES[p.kind], p.stride_x, p.stride_y, p.offset_x, p.offset_y, p.seed,
-        bytes(16), sample_count, len(payload), _crc32(payload))
+        coding, sample_count, len(payload), _crc32(payload))
     head = MAGIC + fields
     return head + struct.pack("<I", _crc32(head)) + payload
 
@@ -322,13 +401,24 @@ def _parse_header(data, name: str, *, file_size: int | None = None) -> dict:
                                  f"{actual_crc:08x}): the header is damaged", path=name)
     fields["header_crc32"] = stored_crc
     _check_fields(fields, name)
+    _parse_coding(fields, name)
     n = fields["sample_count"]
-    expected_payload = n * fields["channels"] * fields["dtype_code"]
+    full = 8 * fields["dtype_code"]
     declared = fields["payload_length"]
-    if declared != expected_payload:
-        raise CorruptPayloadError(
-            f"header declares a {declared}-byte payload but {n} samples x {fields['channels']} "
-            f"channel(s) x {fields['dtype_code']} byte(s) = {expected_payload} bytes", path=name)
+    if fields["codec"] == "raw":
+        bits = fields["value_bits"]
+        expected_payload = -(-n * fields["channels"] * bits // 8)
+        if declared != expected_payload:
+            per_value = f"{fields['dtype_code']} byte(s)" if bits == full else f"{bits} bit(s)"
+            raise CorruptPayloadError(
+                f"header declares a {declared}-byte payload but {n} samples x {fields['channels']} "
+                f"channel(s) x {per_value} = {expected_payload} bytes", path=name)
+    else:
+        raw_payload = n * fields["channels"] * fields["dtype_code"]
+        if not 0 < declared < raw_payload:
+            raise CorruptPayloadError(
+                f"header declares a {declared}-byte {fields['codec']} payload; a coded payload is "
+                f"shorter than the {raw_payload} raw bytes and not empty", path=name)
     actual_payload = size - header_length
     if actual_payload < declared:
         raise TruncatedFileError(f"file is truncated: payload has {actual_payload} of {declared} bytes "
@@ -368,6 +458,36 @@ def _check_fields(f: dict, name: str) -> None:
             f"({expected} samples)")
 
 
+def _parse_coding(f: dict, name: str) -> None:
+    """Add ``codec``, ``value_bits`` (resolved: 0 = all), ``quality``, ``values_crc32`` to ``f``.
+
+    A 1.0 file is raw at full depth whatever its reserved bytes hold; 1.1 and later read
+    them (an all-zero block is raw at full depth too).
+    """
+    full = 8 * f["dtype_code"]
+    if f["version_minor"] == 0:
+        f.update(codec="raw", value_bits=full, quality=0, values_crc32=0)
+        return
+    codec_id, bits, quality, _, crc, _ = _CODING.unpack(f["pattern_reserved"])
+    if codec_id not in CODEC_NAMES:
+        raise UnsupportedVersionError(f"payload codec {codec_id} is not supported (this reader knows "
+                                      f"{', '.join(f'{v} = {k}' for k, v in CODEC_IDS.items())}); "
+                                      "upgrade stereobudget", path=name)
+    codec = CODEC_NAMES[codec_id]
+    bits = bits or full
+    if bits > full:
+        raise CorruptHeaderError(f"value_bits {bits} exceeds the {full} bits of the samples", path=name)
+    if codec in IMAGE_CODECS and _PATTERN_BY_CODE[f["pattern_code"]] not in LATTICE_PATTERNS:
+        raise CorruptHeaderError(f"codec {codec} needs a lattice pattern, not "
+                                 f"{_PATTERN_BY_CODE[f['pattern_code']]}", path=name)
+    if codec.startswith("webp") and bits > 8:
+        raise CorruptHeaderError(f"codec {codec} cannot hold {bits}-bit values", path=name)
+    if (codec in LOSSY_CODECS) != (1 <= quality <= 100) or quality > 100:
+        raise CorruptHeaderError(f"quality {quality} is invalid for codec {codec} (1..100 for a "
+                                 "lossy codec, 0 otherwise)", path=name)
+    f.update(codec=codec, value_bits=bits, quality=quality, values_crc32=crc)
+
+
 def _pattern_from_fields(f: dict) -> SamplingPattern:
     return SamplingPattern(kind=_PATTERN_BY_CODE[f["pattern_code"]], stride_x=f["stride_x"],
                            stride_y=f["stride_y"], offset_x=f["offset_x"], offset_y=f["offset_y"],
@@ -399,11 +519,38 @@ def read_samples(data, *, source: str = "<bytes>") -> SampleSet:
     view = memoryview(data).cast("B")
     fields, payload = _validate_file(view, source)
     dtype = np.dtype("<u1" if fields["dtype_code"] == 1 else "<u2")
-    values = np.frombuffer(payload, dtype=dtype).astype(dtype.newbyteorder("="))  # a writable copy
-    values = values.reshape(fields["sample_count"], fields["channels"])
-    return SampleSet(height=fields["height"], width=fields["width"],
-                     channel_order=_ORDER_BY_CODE[fields["channel_order_code"]],
-                     pattern=_pattern_from_fields(fields), values=values)
+    order = _ORDER_BY_CODE[fields["channel_order_code"]]
+    pattern = _pattern_from_fields(fields)
+    codec, bits, full = fields["codec"], fields["value_bits"], 8 * fields["dtype_code"]
+    if codec == "raw" and bits == full:
+        values = np.frombuffer(payload, dtype=dtype).astype(dtype.newbyteorder("="))  # a writable copy
+        values = values.reshape(fields["sample_count"], fields["channels"])
+    else:
+        values = _decode_values(fields, payload, pattern=pattern, channel_order=order, name=source)
+    return SampleSet(height=fields["height"], width=fields["width"], channel_order=order,
+                     pattern=pattern, values=values, codec=codec,
+                     value_bits=None if bits == full else bits, quality=fields["quality"])
+
+
+def _decode_values(fields: dict, payload, *, pattern: SamplingPattern, channel_order: str, name: str):
+    """Full-depth values of a coded payload; CorruptPayloadError when it does not decode."""
+    from ._codecs import decode_payload, have_jxl, restore_bits, values_crc32
+
+    codec, bits = fields["codec"], fields["value_bits"]
+    if codec.startswith("jxl") and not have_jxl():
+        raise UnsupportedVersionError(f"the payload is JPEG XL ({codec}); decoding it needs imagecodecs "
+                                      "(pip install 'stereobudget[codecs]')", path=name)
+    lattice = grid_shape(pattern, fields["height"], fields["width"]) if codec in IMAGE_CODECS else None
+    kept = decode_payload(payload, codec=codec, value_bits=bits, count=fields["sample_count"],
+                          channels=fields["channels"], lattice=lattice, channel_order=channel_order,
+                          name=name)
+    stored = fields["values_crc32"]
+    if stored and codec not in LOSSY_CODECS:
+        actual = values_crc32(kept)
+        if actual != stored:
+            raise CorruptPayloadError(f"decoded sample values do not match their checksum (stored "
+                                      f"{stored:08x}, computed {actual:08x})", path=name)
+    return restore_bits(kept, value_bits=bits, dtype="u1" if fields["dtype_code"] == 1 else "u2")
 
 
 def _validate_file(view: memoryview, source: str):
@@ -475,6 +622,10 @@ def header_dict(fields: dict) -> dict:
         "header_crc32": f"{f['header_crc32']:08x}",
         "epsilon": n / float(w * h),
         "file_size": f["file_size"],
+        "codec": f["codec"],
+        "value_bits": f["value_bits"],
+        "quality": f["quality"],
+        "bits_per_pixel": 8.0 * (f["header_length"] + f["payload_length"]) / float(w * h),
     }
 
 
@@ -555,13 +706,19 @@ class EncodeReport:
     header_bytes: int
     payload_bytes: int
     file_size: int
+    codec: str = "raw"
+    value_bits: int = 8
+    quality: int = 0
+    bits_per_pixel: float = 0.0
 
     def as_dict(self) -> dict:
         return dict(self.__dict__)
 
 
 def encode_file(source, output, *, pattern: SamplingPattern, raw_size: tuple[int, int] | None = None,
-                pix_fmt: str | None = None, overwrite: bool = False) -> EncodeReport:
+                pix_fmt: str | None = None, overwrite: bool = False, codec: str = "raw",
+                value_bits: int | None = None, quality: int | None = None, size: int | None = None,
+                size_fraction: float | None = None) -> EncodeReport:
     """Read one right image, keep its samples, and write the ``.sbs`` file atomically.
 
     This is the per-file unit of work of ``sb-encode`` (and of batch runners).
@@ -580,6 +737,13 @@ def encode_file(source, output, *, pattern: SamplingPattern, raw_size: tuple[int
         Raw pixel format, see :data:`stereobudget.io._images.RAW_PIXEL_FORMATS`.
     overwrite : bool
         Replace an existing output.
+    codec, value_bits, quality
+        Payload coding, see :func:`write_samples`.
+    size : int, optional
+        Byte budget of the file: the grid stride (``pattern`` gives only its kind) and
+        the coding are chosen by :func:`stereobudget.io.fit_budget`.
+    size_fraction : float, optional
+        The budget as a fraction of the raw image bytes (W H channels bytes-per-value).
 
     Returns
     -------
@@ -598,7 +762,8 @@ def encode_file(source, output, *, pattern: SamplingPattern, raw_size: tuple[int
         if pix_fmt is None:
             raise OptionError("a raw frame needs a pixel format (--pix-fmt)")
         data = read_input_bytes(source, error=ImageReadError)
-        if pattern.is_regular_grid:
+        plain = codec == "raw" and value_bits is None and size is None and size_fraction is None
+        if pattern.is_regular_grid and plain:
             # The camera's common case, without numpy: bytes slicing (see rawgrid).
             return _encode_raw_grid(data, output, name=name, raw_size=raw_size, pix_fmt=pix_fmt,
                                     pattern=pattern, overwrite=overwrite)
@@ -609,13 +774,32 @@ def encode_file(source, output, *, pattern: SamplingPattern, raw_size: tuple[int
         from . import _images as imageio
         image, channel_order = imageio.read_image(source, name=name)
     height, width = image.shape[:2]
-    _count_samples(pattern, width, height, name)
-    sample_set = encode_image(image, pattern=pattern, channel_order=channel_order)
-    data = write_samples(sample_set)
+    if size_fraction is not None:
+        size = int(size_fraction * image.size * image.dtype.itemsize)
+    if size is not None:
+        if pattern.kind != "grid" or (pattern.offset_x, pattern.offset_y) != (0, 0):
+            raise OptionError("--size and --epsilon choose a grid stride: use the default grid pattern, "
+                              "no offset")
+        from ._budget import fit_budget
+        try:
+            sample_set, data, coding = fit_budget(image, budget=size, codec=None if codec == "raw" else codec,
+                                                  value_bits=value_bits, quality=quality,
+                                                  channel_order=channel_order)
+        except OptionError as exc:
+            raise OptionError(exc.message, path=exc.path or name) from None
+        pattern = sample_set.pattern
+    else:
+        _count_samples(pattern, width, height, name)
+        sample_set = encode_image(image, pattern=pattern, channel_order=channel_order)
+        try:
+            data, used, bits, q = _coded_file(sample_set, codec=codec, value_bits=value_bits, quality=quality)
+        except OptionError as exc:
+            raise OptionError(exc.message, path=exc.path or name) from None
+        coding = {"codec": used, "value_bits": bits, "quality": q}
     write_output_bytes(output, data, overwrite=overwrite)
     return _report(name, output, width=width, height=height, channels=sample_set.channels,
                    channel_order=channel_order, dtype=str(sample_set.dtype), pattern=pattern,
-                   sample_count=sample_set.values.shape[0], file_size=len(data))
+                   sample_count=sample_set.values.shape[0], file_size=len(data), **coding)
 
 
 def _encode_raw_grid(data, output, *, name: str, raw_size: tuple[int, int], pix_fmt: str,
@@ -648,7 +832,8 @@ def _count_samples(pattern: SamplingPattern, width: int, height: int, name: str)
 
 
 def _report(name: str, output, *, width: int, height: int, channels: int, channel_order: str, dtype: str,
-            pattern: SamplingPattern, sample_count: int, file_size: int) -> EncodeReport:
+            pattern: SamplingPattern, sample_count: int, file_size: int, codec: str = "raw",
+            value_bits: int | None = None, quality: int = 0) -> EncodeReport:
     """The :class:`EncodeReport` of a file written by :func:`encode_file`."""
     return EncodeReport(
         source=name, output="<stdout>" if str(output) == STDIO else str(output),
@@ -656,4 +841,6 @@ def _report(name: str, output, *, width: int, height: int, channels: int, channe
         pattern=pattern.kind, stride_x=pattern.stride_x, stride_y=pattern.stride_y,
         offset_x=pattern.offset_x, offset_y=pattern.offset_y, seed=pattern.seed,
         sample_count=sample_count, epsilon=sample_count / float(height * width),
-        header_bytes=HEADER_SIZE_V1_0, payload_bytes=file_size - HEADER_SIZE_V1_0, file_size=file_size)
+        header_bytes=HEADER_SIZE_V1_0, payload_bytes=file_size - HEADER_SIZE_V1_0, file_size=file_size,
+        codec=codec, value_bits=value_bits or 8 * _DTYPE_CODE_BY_NAME[dtype], quality=quality,
+        bits_per_pixel=8.0 * file_size / float(width * height))

@@ -10,7 +10,8 @@ Three steps, each a pure function on arrays:
    right camera's samples (the only information the host has about those pixels).
 3. :func:`enhance_with_samples` -- the samples are exact pixels of I2: spread the sparse
    difference ``sample - warped`` with a joint bilateral filter guided by the estimate and
-   add it in the non-occluded area, then write every sample back verbatim.
+   add it in the non-occluded area, then write every sample back verbatim (clamped into
+   its interval when low bits were dropped; not at all after a lossy codec).
 
 :func:`recover_right` chains them for one left image + sample set + disparity map.  A
 ``downsample`` file sends block means instead of pixels; :func:`recover_right_from_block_means`
@@ -634,6 +635,27 @@ def recover_right_from_block_means(left: np.ndarray, disparity: np.ndarray, samp
                           psnr_at_samples_before_reinsertion=psnr_after, timings=timings)
 
 
+def _reinsert(image: np.ndarray, rows: np.ndarray, cols: np.ndarray, samples: SampleSet) -> None:
+    """Write what the samples say about their pixels into ``image`` (same dtype, RGB order).
+
+    Exact samples are the pixels: written verbatim.  With ``value_bits`` < full depth the
+    true pixel lies in ``[v & ~mask, v | mask]`` (``mask`` = the dropped bits), so the
+    estimate is clamped into that interval -- never further from the truth than either.
+    A lossy codec gives no such bound: the estimate, already pulled towards the decoded
+    values by the enhancement, is kept.
+    """
+    if samples.exact:
+        image[rows, cols] = samples.values_rgb()
+        return
+    if samples.lossy:
+        return
+    full = 8 * samples.values.dtype.itemsize
+    mask = (1 << (full - samples.value_bits)) - 1
+    values = samples.values_rgb()
+    low = values & ~values.dtype.type(mask)
+    image[rows, cols] = np.clip(image[rows, cols], low, low | values.dtype.type(mask))
+
+
 def recover_right(left: np.ndarray, disparity: np.ndarray, samples: SampleSet, *, enhance: bool = True,
                   reinsert_samples: bool = True, warp_mode: str = DEFAULT_WARP_MODE,
                   z_tolerance: float = DEFAULT_Z_TOLERANCE, inpaint_lowpass_sigma: float = 0.0,
@@ -654,8 +676,10 @@ def recover_right(left: np.ndarray, disparity: np.ndarray, samples: SampleSet, *
     enhance : bool
         Run :func:`enhance_with_samples`.
     reinsert_samples : bool
-        Write every sample back verbatim at its position (the camera sent those pixels,
-        so they are exact).
+        Put the samples back at their positions: verbatim when they are exact; clamped
+        into each value's interval when the camera dropped low bits (``--bits``); not at
+        all after a lossy codec, whose values are no truer than the estimate (see
+        :func:`_reinsert`).
     warp_mode, z_tolerance : see :func:`warp_left_to_right`
     inpaint_lowpass_sigma : see :func:`interpolate_samples`
     enhance_sigma_s, enhance_sigma_r, enhance_shrinkage : see :func:`enhance_with_samples`
@@ -694,7 +718,7 @@ def recover_right(left: np.ndarray, disparity: np.ndarray, samples: SampleSet, *
 
     image = _to_dtype(estimate, left.dtype)
     if reinsert_samples:
-        image[rows, cols] = samples.values_rgb()
+        _reinsert(image, rows, cols, samples)
     if left.ndim == 2:
         image = image[:, :, 0]
     return RecoveredRight(image=image, holes=holes,

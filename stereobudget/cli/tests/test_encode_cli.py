@@ -218,9 +218,10 @@ def test_raw_grid_encoding_and_info_import_no_numpy(tmp_path, pix_fmt, channels,
                              "--stride-y", 3, "--offset", "1,2", "-o", out, "--json"])
     ss = load_samples(out)
     np.testing.assert_array_equal(ss.grid_values(), frame.reshape(37, 45, channels)[2::3, 1::4])
-    # Standard input to standard output: the same bytes.
+    # Standard input to standard output, with the default --codec raw spelt out: the same bytes.
     piped = _run_main_without_numpy(["-", "--raw", "45x37", "--pix-fmt", pix_fmt, "--stride-x", 4,
-                                     "--stride-y", 3, "--offset", "1,2", "-o", "-"], stdin=raw)
+                                     "--stride-y", 3, "--offset", "1,2", "-o", "-", "--codec", "raw"],
+                                    stdin=raw)
     assert piped.stdout == out.read_bytes()
     # --info, with and without the payload check.
     for extra in ([], ["--header-only"]):
@@ -413,3 +414,74 @@ def test_teddy_payload_is_exactly_the_grid(tmp_path):
     assert out.stat().st_size == 80 + 20250
     rgb = cv2.imread(str(right), cv2.IMREAD_UNCHANGED)[:, :, ::-1]
     np.testing.assert_array_equal(load_samples(out).grid_values(), rgb[::5, ::5])
+
+
+# --- payload coding, byte budget ----------------------------------------------------------------
+
+def smooth_png(tmp_path, h=60, w=80):
+    yy, xx = np.mgrid[0:h, 0:w]
+    rgb = np.stack([128 + 100 * np.sin(xx / (6 + c) + yy / (9 + c)) for c in range(3)], -1).astype(np.uint8)
+    path = tmp_path / "smooth.png"
+    assert cv2.imwrite(str(path), rgb[:, :, ::-1].copy())
+    return path, rgb
+
+
+@pytest.mark.parametrize("args,codec", [(["--codec", "lossless"], None), (["--codec", "deflate"], "deflate"),
+                                        (["--codec", "webp", "--quality", "80"], "webp"),
+                                        (["--bits", "5"], "raw")])
+def test_coded_files_and_what_info_says_of_them(tmp_path, args, codec):
+    path, rgb = smooth_png(tmp_path)
+    out = tmp_path / "c.sbs"
+    proc = run(path, "-o", out, "--stride", 2, "--json", *args)
+    assert proc.returncode == 0, proc.stderr.decode()
+    report = json.loads(proc.stdout)
+    info = json.loads(run("--info", out).stdout)
+    assert info["version"] == "1.1" and info["codec"] == report["codec"]
+    assert codec is None or info["codec"] == codec
+    assert info["bits_per_pixel"] == pytest.approx(8 * out.stat().st_size / (60 * 80))
+    assert report["bits_per_pixel"] == pytest.approx(info["bits_per_pixel"])
+    ss = load_samples(out)
+    if info["codec"] in ("deflate", "jxl_lossless", "webp_lossless"):
+        np.testing.assert_array_equal(ss.grid_values(), rgb[::2, ::2])
+    if "--bits" in args:
+        assert info["value_bits"] == 5
+        assert np.abs(ss.grid_values().astype(int) - rgb[::2, ::2]).max() <= 4
+
+
+@pytest.mark.parametrize("budget", [300, 1000, 4000, 12000])
+def test_size_never_exceeds_its_budget(tmp_path, budget):
+    path, _ = smooth_png(tmp_path)
+    out = tmp_path / "b.sbs"
+    proc = run(path, "-o", out, "--size", budget, "--json")
+    assert proc.returncode == 0, proc.stderr.decode()
+    assert out.stat().st_size <= budget and json.loads(proc.stdout)["file_size"] <= budget
+    # --epsilon is the same budget as a fraction of the raw image bytes.
+    proc = run(path, "-o", out, "--epsilon", budget / (60 * 80 * 3), "--json", "--overwrite", "--codec", "jxl")
+    assert proc.returncode == 0, proc.stderr.decode()
+    assert out.stat().st_size <= budget
+
+
+@pytest.mark.parametrize("args,fragment", [
+    (["--size", "50"], "fits in 50 bytes"),
+    (["--size", "1k"], "--size must be a positive number of bytes"),
+    (["--size", "900", "--epsilon", "0.1"], "not both"),
+    (["--quality", "50"], "--quality applies to --codec webp or jxl"),
+    (["--pattern", "fps", "--codec", "deflate"], "needs a lattice pattern"),
+    (["--pattern", "jitter", "--size", "900"], "need --pattern grid"),
+    (["--bits", "9"], "between 1 and 8"),
+])
+def test_coding_option_errors(png, tmp_path, args, fragment):
+    proc = run(png[0], "-o", tmp_path / "x.sbs", *args)
+    assert_clean_error(proc, OptionError.exit_code, fragment)
+    assert not (tmp_path / "x.sbs").exists()
+
+
+def test_a_raw_frame_can_be_coded_too(tmp_path):
+    frame = rgb_image(h=30, w=40)
+    path = tmp_path / "f.raw"
+    path.write_bytes(frame.tobytes())
+    out = tmp_path / "f.sbs"
+    proc = run(path, "--raw", "40x30", "--pix-fmt", "rgb24", "--bits", 4, "-o", out)
+    assert proc.returncode == 0, proc.stderr.decode()
+    ss = load_samples(out)
+    assert ss.value_bits == 4 and np.abs(ss.grid_values().astype(int) - frame[::5, ::5]).max() <= 8

@@ -68,13 +68,19 @@ def base_files() -> tuple:
     specs = (("grid3_gray8", "grid", 3, 1, np.uint8), ("grid4_rgb8", "grid", 4, 3, np.uint8),
              ("jitter3_rgb16", "jitter", 3, 3, np.uint16), ("fps4_gray16", "fps", 4, 1, np.uint16),
              ("adaptive3_rgb8", "adaptive_fps", 3, 3, np.uint8),
-             ("downsample4_rgb8", "downsample", 4, 3, np.uint8), ("full_gray8", "grid", 1, 1, np.uint8))
+             ("downsample4_rgb8", "downsample", 4, 3, np.uint8), ("full_gray8", "grid", 1, 1, np.uint8),
+             # 1.1 coded payloads
+             ("grid2_rgb8_deflate", "grid", 2, 3, np.uint8, {"codec": "deflate"}),
+             ("grid2_rgb8_lossless", "grid", 2, 3, np.uint8, {"codec": "lossless"}),
+             ("grid2_gray8_webp", "grid", 2, 1, np.uint8, {"codec": "webp", "quality": 70}),
+             ("jitter3_rgb8_bits6", "jitter", 3, 3, np.uint8, {"value_bits": 6}))
     out = []
-    for i, (name, kind, stride, channels, dtype) in enumerate(specs):
+    for i, (name, kind, stride, channels, dtype, *coding) in enumerate(specs):
         left, right = _stereo_pair(i, H, W, channels, dtype)
         seed = 5 if kind in ("jitter", "fps", "adaptive_fps") else 0
         pattern = SamplingPattern(kind=kind, stride_x=stride, stride_y=stride, seed=seed)
-        out.append((name, write_samples(encode_image(right, pattern=pattern)), left))
+        out.append((name, write_samples(encode_image(right, pattern=pattern), **(coding[0] if coding else {})),
+                    left))
     return tuple(out)
 
 
@@ -115,7 +121,7 @@ def mutated_sample_files(draw):
     data = base_files()[index][1]
     other = base_files()[draw(st.integers(0, len(base_files()) - 1))][1]
     kind = draw(st.sampled_from(["truncate", "flip", "splice", "field", "dims", "random", "magic_random",
-                                 "payload_crc", "insert", "unchanged", "other"]))
+                                 "payload_crc", "insert", "unchanged", "other", "coding"]))
     if kind == "truncate":
         return index, data[:draw(st.integers(0, len(data) - 1))]
     if kind == "flip":
@@ -144,6 +150,14 @@ def mutated_sample_files(draw):
         payload[draw(st.integers(0, len(payload) - 1))] ^= 0xFF
         return index, rewrite_header(data[:HEADER] + bytes(payload),
                                      payload_crc32=zlib.crc32(payload) & 0xFFFFFFFF)
+    if kind == "coding":
+        # The 1.1 coding block (codec, value_bits, quality, values CRC), header CRC fixed.
+        head = bytearray(data[:HEADER - 4])
+        head[9] = draw(st.sampled_from([0, 1, 1, 2]))
+        for where, value in draw(st.lists(st.tuples(st.sampled_from([40, 41, 42, 43, 44, 47]),
+                                                    st.integers(0, 255)), min_size=1, max_size=3)):
+            head[where] = value
+        return index, bytes(head) + struct.pack("<I", zlib.crc32(head) & 0xFFFFFFFF) + data[HEADER:]
     if kind == "insert":
         pos = draw(st.integers(0, len(data)))
         return index, data[:pos] + draw(st.binary(min_size=1, max_size=16)) + data[pos:]

@@ -385,7 +385,9 @@ def test_raw_grid_path_writes_the_bytes_of_the_numpy_path(case):
         "pattern": "grid", "stride_x": pattern.stride_x, "stride_y": pattern.stride_y,
         "offset_x": pattern.offset_x, "offset_y": pattern.offset_y, "seed": 0,
         "sample_count": ss.values.shape[0], "epsilon": ss.epsilon, "header_bytes": HEADER_SIZE_V1_0,
-        "payload_bytes": len(expected) - HEADER_SIZE_V1_0, "file_size": len(expected)}
+        "payload_bytes": len(expected) - HEADER_SIZE_V1_0, "file_size": len(expected),
+        "codec": "raw", "value_bits": 8 * ss.dtype.itemsize, "quality": 0,
+        "bits_per_pixel": 8.0 * len(expected) / (size[0] * size[1])}
 
 
 @pytest.mark.parametrize("pix_fmt", sorted(_RAW_FORMATS))

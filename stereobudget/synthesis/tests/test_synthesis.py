@@ -240,6 +240,28 @@ def test_samples_are_reproduced_exactly(pattern):
     assert set(out.timings) == {"warp", "inpaint", "enhance"}
 
 
+def test_coded_samples_are_trusted_only_as_far_as_their_coding_allows():
+    from stereobudget.io import read_samples, write_samples
+
+    s = make_scene("slanted", height=64, width=96, max_disp=16)
+    exact = encode_image(s.right, pattern=grid(4))
+    rows, cols = exact.positions()
+    disparity = perturbed_disparity(s)
+    # Dropped bits: each recovered sample pixel lies in the interval its kept bits allow.
+    five = read_samples(write_samples(exact, value_bits=5))
+    out = synthesis.recover_right(s.left, disparity, five)
+    at = out.image[rows, cols].astype(int)
+    low = (exact.values >> 3 << 3).astype(int)
+    assert ((at >= low) & (at <= low + 7)).all()
+    assert not np.array_equal(at, five.values)      # clamped, not the interval's middle written back
+    # A lossy codec: no write-back, the estimate stays what the enhancement made of it.
+    lossy = read_samples(write_samples(exact, codec="webp", quality=60))
+    if lossy.lossy:
+        out = synthesis.recover_right(s.left, disparity, lossy)
+        kept = synthesis.recover_right(s.left, disparity, lossy, reinsert_samples=False)
+        np.testing.assert_array_equal(out.image, kept.image)
+
+
 def test_bgr_samples_give_the_same_image_as_rgb():
     s = make_scene("planes", height=64, width=96, max_disp=16)
     rgb = encode_image(s.right, pattern=grid(3))

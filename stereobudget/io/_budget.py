@@ -1,0 +1,128 @@
+"""A byte budget for the sample file, as ``cwebp -size`` does: the densest grid that fits.
+
+:func:`fit_budget` starts from the densest square grid whose raw file fits and tries
+denser grids while one of the allowed codings fits, keeping the most faithful coding
+that fits at the densest such stride.  Every candidate is really encoded and measured,
+so the file never exceeds the budget.
+"""
+
+from __future__ import annotations
+
+from ..errors import OptionError
+from ..sampling._patterns import SamplingPattern, sample_count
+from ._codecs import LOSSY_CODECS, resolve_codec
+
+#: Qualities a lossy codec tries, best first, when ``--size`` comes without ``--quality``.
+#: The floor keeps the search from trading all fidelity for density.
+BUDGET_QUALITIES = (95, 90, 85, 80, 75)
+#: Low bits a lossless coding may drop, one at a time, when ``--size`` comes without
+#: ``--bits``: at the raw stride-5 bytes, stride 4 with 7 bits (Teddy) or 6 bits (Cones)
+#: decodes with 9.5 / 7.5 % bad pixels against 12.6 / 9.0 % for raw stride 5
+#: (Hybrid, docs/results.md).
+BUDGET_DROPPED_BITS = 2
+#: Largest stride tried.
+MAX_BUDGET_STRIDE = 64
+
+
+def grid(stride: int) -> SamplingPattern:
+    return SamplingPattern(kind="grid", stride_x=stride, stride_y=stride)
+
+
+def fit_budget(image, *, budget: int, codec: str | None = None, value_bits: int | None = None,
+               quality: int | None = None, channel_order: str | None = None):
+    """The densest square grid and coding whose ``.sbs`` file has at most ``budget`` bytes.
+
+    Parameters
+    ----------
+    image : ndarray, (H, W) or (H, W, C), uint8 or uint16
+        The right image.
+    budget : int
+        Largest file size in bytes (header included).
+    codec : str, optional
+        Only this codec (and raw, when the coded payload is no shorter); default: ``raw``
+        then ``lossless``, never lossy unless asked.
+    value_bits, quality : int, optional
+        As :func:`stereobudget.io.write_samples`.  Without ``value_bits`` a lossless
+        coding also tries dropping up to :data:`BUDGET_DROPPED_BITS` low bits; a lossy
+        codec without ``quality`` tries :data:`BUDGET_QUALITIES`.
+    channel_order : str, optional
+        As :func:`stereobudget.io.encode_image`.
+
+    Returns
+    -------
+    sample_set : SampleSet
+    data : bytes
+        The file, ``len(data) <= budget``.
+    coding : dict
+        ``codec``, ``value_bits``, ``quality`` as written.
+
+    Raises
+    ------
+    OptionError
+        Not even the sparsest grid fits.
+    """
+    from ._samples import HEADER_SIZE_V1_0, _coded_file, encode_image
+
+    height, width = image.shape[:2]
+    channels = 1 if image.ndim == 2 else image.shape[2]
+    value_bytes = image.dtype.itemsize
+    bits = 8 * value_bytes if value_bits is None else value_bits
+    from ._codecs import DEFAULT_QUALITY, check_coding
+
+    # (codec, bits, quality), most faithful first; every one is checked now, so that an
+    # option error is not reported as "nothing fits" later.
+    codings = []
+    for name in ([codec] if codec else ["raw", "lossless"]):
+        name = resolve_codec(name)
+        if name in LOSSY_CODECS:
+            codings += [(name, bits, q) for q in ([quality] if quality else BUDGET_QUALITIES)]
+        elif name == "raw" or value_bits is not None:
+            codings.append((name, bits, None))
+        else:
+            codings += [(name, b, None) for b in range(bits, max(bits - BUDGET_DROPPED_BITS, 1) - 1, -1)]
+    usable = []
+    for name, b, q in codings:
+        try:
+            check_coding(codec=name, value_bits=b, quality=q or DEFAULT_QUALITY, dtype_bytes=value_bytes,
+                         pattern_kind="grid", channels=channels)
+        except OptionError:
+            if codec:
+                raise
+            continue   # the default search skips what cannot apply (WebP on 16 bits)
+        usable.append((name, b, q))
+    codings = usable
+    def raw_size(stride, b):
+        n = sample_count(SamplingPattern(kind="grid", stride_x=stride, stride_y=stride), height, width)
+        return HEADER_SIZE_V1_0 + -(-n * channels * b // 8)
+
+    # The sparsest grid is where the search starts: the densest stride whose raw file
+    # fits (its size is known without encoding), or the sparsest stride tried.
+    start = next((s for s in range(1, MAX_BUDGET_STRIDE + 1) if raw_size(s, bits) <= budget), None)
+    best = None
+    if start is not None:
+        sample_set = encode_image(image, pattern=grid(start), channel_order=channel_order)
+        best = (sample_set,) + _coded_file(sample_set, codec="raw", value_bits=value_bits, quality=None)
+    coded = [c for c in codings if c[0] != "raw"]
+    # Then denser grids while a coding fits.  At each stride the leanest coding is tried
+    # first, then more faithful ones while they fit: a file grows with the stride's
+    # density and with fidelity, so the first stride where even the leanest coding is
+    # over budget ends the search (every candidate is measured, never estimated).
+    for stride in range((start or MAX_BUDGET_STRIDE + 1) - 1, 0, -1):
+        sample_set = encode_image(image, pattern=grid(stride), channel_order=channel_order)
+        fitting = None
+        for name, b, q in reversed(coded):
+            try:
+                found = _coded_file(sample_set, codec=name, value_bits=b, quality=q)
+            except OptionError:
+                continue   # e.g. a lattice too large for WebP: try the next coding
+            if len(found[0]) > budget:
+                break
+            fitting = (sample_set,) + found
+        if fitting is None:
+            break
+        best = fitting
+    if best is not None:
+        sample_set, data, used, kept_bits, used_q = best
+        return sample_set, data, {"codec": used, "value_bits": kept_bits, "quality": used_q}
+    raise OptionError(f"no grid up to stride {MAX_BUDGET_STRIDE} fits in {budget} bytes for a "
+                      f"{width}x{height} image (a file has an {HEADER_SIZE_V1_0}-byte header)")
