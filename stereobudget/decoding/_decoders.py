@@ -367,9 +367,7 @@ def _hybrid_semiglobal(left_lp, right_lp, grids, guide, *, min_disp, num_disp, p
     from types import SimpleNamespace
 
     from ..aggregate._pair_volumes import pair_cost_rows
-    from ..aggregate._refine import fill_from_row, left_right_stable
-    from ..aggregate._semiglobal import semiglobal_aggregate, semiglobal_winners
-    from ._full import typical_margin
+    from ._full import semiglobal_disparity, typical_margin
     h, w = guide.shape
     layers = volume_layers(num_disp)
     with timer("cost"):
@@ -382,25 +380,16 @@ def _hybrid_semiglobal(left_lp, right_lp, grids, guide, *, min_disp, num_disp, p
         cost = np.ascontiguousarray(rows.reshape(h, w, layers)[:, :, :num_disp])  # float32
         scratch.recycle(rows)
         margin = typical_margin(cost, floor=0.0)
-    with timer("aggregate"):
-        total = semiglobal_aggregate(cost, guide, p1=params.sgm_p1 * margin, p2=params.hybrid_sgm_p2 * margin,
-                                     edge_scale=params.sgm_edge_scale, paths=params.sgm_paths)
-        del cost
-        disp_left, disp_right = semiglobal_winners(total, int(min_disp))
-        del total
-    with timer("refine"):
-        stable = left_right_stable(disp_left, disp_right, np.float32(1.0))
-        return median_filter_disparity(fill_from_row(disp_left, stable), params.median_size)
+    return semiglobal_disparity(cost, guide, min_disp=min_disp, p1=params.sgm_p1 * margin,
+                                p2=params.hybrid_sgm_p2 * margin, params=params, timer=timer)
 
 
 def _hybrid_census_semiglobal(left_f, guide, samples, left_lp, right_lp, *, min_disp, num_disp, params, timer,
                               weight):
     """Hybrid with a radiometrically robust dense term: the Sparse fill mixed with the census
     of the low-passed pair at the grid's spacing, aggregated on semi-global paths."""
-    from ..aggregate._refine import fill_from_row, left_right_stable
-    from ..aggregate._semiglobal import semiglobal_aggregate, semiglobal_winners
     from ..cost._census import mix_spaced_census, spaced_census
-    from ._full import typical_margin
+    from ._full import semiglobal_disparity, typical_margin
     p = samples.pattern
     with timer("jbf_fill"):
         cost = _sparse_filled_cost(left_f, guide, samples, min_disp=min_disp, num_disp=num_disp, params=params)
@@ -411,15 +400,8 @@ def _hybrid_census_semiglobal(left_f, guide, samples, left_lp, right_lp, *, min_
         mix_spaced_census(cost, left_codes, right_codes, min_disp=int(min_disp),
                           volume_scale=weight / params.truncation, census_weight=(1.0 - weight) / 8.0)
         margin = typical_margin(cost, floor=0.0)
-    with timer("aggregate"):
-        total = semiglobal_aggregate(cost, guide, p1=params.sgm_p1 * margin, p2=params.hybrid_sgm_p2 * margin,
-                                     edge_scale=params.sgm_edge_scale, paths=params.sgm_paths)
-        del cost
-        disp_left, disp_right = semiglobal_winners(total, int(min_disp))
-        del total
-    with timer("refine"):
-        stable = left_right_stable(disp_left, disp_right, np.float32(1.0))
-        return median_filter_disparity(fill_from_row(disp_left, stable), params.median_size)
+    return semiglobal_disparity(cost, guide, min_disp=min_disp, p1=params.sgm_p1 * margin,
+                                p2=params.hybrid_sgm_p2 * margin, params=params, timer=timer)
 
 
 def _decode_downsample(left_f, samples, tree_guide, *, min_disp, num_disp, params, timer):

@@ -67,13 +67,38 @@ def census_semiglobal_disparity(left_f, right_f, *, tree_guide, min_disp, num_di
         left_gray, right_gray = to_gray(left_f), to_gray(right_f)
         cost = census_cost_volume(left_gray, right_gray, min_disp=min_disp, num_disp=num_disp)  # uint8
         margin = typical_margin(cost)
+    return semiglobal_disparity(cost, left_gray, min_disp=min_disp, p1=params.sgm_p1 * margin,
+                                p2=params.sgm_p2 * margin, params=params, timer=timer)
+
+
+def semiglobal_disparity(cost, guide, *, min_disp, p1, p2, params, timer):
+    """Semi-global paths, diagonal left-right check, row fill of rejected pixels, median.
+
+    The tail that every semi-global route shares (the full pair, both of Hybrid's).
+
+    Parameters
+    ----------
+    cost : ndarray, uint8 or float32 (H, W, D)
+        Left-view cost; consumed.
+    guide : ndarray, float32 (H, W)
+        I1's gray image (lowers P2 at its edges).
+    min_disp : int
+    p1, p2 : float
+        Path penalties in the cost's units.
+    params : stereobudget.decoding.DecoderParams
+        ``sgm_edge_scale``, ``sgm_paths``, ``median_size``.
+    timer : callable
+
+    Returns
+    -------
+    ndarray, float32 (H, W)
+    """
     with timer("aggregate"):
-        total = semiglobal_aggregate(cost, left_gray, p1=params.sgm_p1 * margin, p2=params.sgm_p2 * margin,
-                                     edge_scale=params.sgm_edge_scale, paths=params.sgm_paths)  # float32
+        total = semiglobal_aggregate(cost, guide, p1=p1, p2=p2, edge_scale=params.sgm_edge_scale,
+                                     paths=params.sgm_paths)  # float32
         del cost
         disp_left, disp_right = semiglobal_winners(total, int(min_disp))
         del total
     with timer("refine"):
         stable = left_right_stable(disp_left, disp_right, np.float32(1.0))
-        disp = median_filter_disparity(fill_from_row(disp_left, stable), params.median_size)
-    return disp
+        return median_filter_disparity(fill_from_row(disp_left, stable), params.median_size)
