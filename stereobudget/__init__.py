@@ -7,7 +7,9 @@ The library is grouped by topic; each subpackage re-exports its public names:
 - :mod:`stereobudget.sampling` — where the right camera samples (grid, random, adaptive,
   farthest-point), and the block means Downsample sends.
 - :mod:`stereobudget.cost` — matching costs.  **Eq. 1**, the sparse DSI (the cost of each
-  left pixel against the right samples): :func:`stereobudget.cost.sparse_pair_cost`.
+  left pixel against the right samples): :func:`stereobudget.cost.sparse_pair_cost`, with
+  its lattice census term; the census of a full pair and of a grid's spacing
+  (:func:`stereobudget.cost.census_cost_volume`, :func:`stereobudget.cost.spaced_census`).
 - :mod:`stereobudget.fill` — **Eq. 2**, the joint bilateral fill of the sparse DSI:
   :func:`stereobudget.fill.filled_sparse_dsi` (the grids of :func:`stereobudget.fill.sparse_dsi_grids`);
   the low-passed pair Hybrid and Downsample use (:func:`stereobudget.fill.gaussian_lowpass`,
@@ -16,7 +18,8 @@ The library is grouped by topic; each subpackage re-exports its public names:
   :func:`stereobudget.aggregate.aggregate`; the cost volumes of both views
   (:func:`stereobudget.aggregate.pair_cost_rows`, where **Hybrid's mix** of the Sparse fill
   and the dense DSI of the low-passed pair is taken per pixel), winner-take-all and the
-  left-right check with refinement.
+  left-right check with refinement; the semi-global paths the default full-pair and Hybrid
+  routes aggregate on (:func:`stereobudget.aggregate.semiglobal_aggregate`).
 - :mod:`stereobudget.decoding` — the decoders of paper Fig. 2 (Sparse, Hybrid, Downsample,
   and the full pair), their parameters (Hybrid's weight: :func:`stereobudget.decoding.hybrid_weight`),
   tiling and the memory estimate.  :func:`decode` is the entry point.
