@@ -348,8 +348,10 @@ def test_decode_batch_json_into_closed_pipe_is_quiet(tmp_path):
     left_dir, samples_dir = make_pairs(tmp_path, 3)
     cmd = (f"'{SB_DECODE}' --left-dir '{left_dir}' --samples-dir '{samples_dir}' --max-disp {MAX_DISP} "
            f"--disparity '{tmp_path}/D/{{stem}}.pfm' -j 1 --json | head -n 0")
-    proc = subprocess.run(cmd, shell=True, executable="/bin/bash", capture_output=True, text=True, timeout=120)
-    assert proc.stderr == "" and proc.returncode == 0
+    proc = subprocess.run(cmd, shell=True, executable="/bin/bash", capture_output=True, text=True, timeout=600)
+    # On a fresh install the first decode says that it compiles; nothing else may be said.
+    said = [line for line in proc.stderr.splitlines() if "compiling kernels, first run only" not in line]
+    assert said == [] and proc.returncode == 0
     assert no_temp_files(tmp_path / "D")
 
 

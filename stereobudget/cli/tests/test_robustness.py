@@ -251,9 +251,10 @@ def test_image_reader_fuzz_ends_in_image_errors(index, cut, flips):
 
 def test_fuzz_script_runs_clean(tmp_path):
     proc = subprocess.run([sys.executable, str(REPO / "benchmarks" / "fuzz_sample_file.py"), "--max-cases", "40",
-                           "--seconds", "60", "--seed", "3", "--cli-every", "10", "--subprocess-every", "1000",
+                           # Time for a fresh install's kernel compilation too: the cases stop at 40.
+                           "--seconds", "480", "--seed", "3", "--cli-every", "10", "--subprocess-every", "1000",
                            "--save-dir", str(tmp_path / "fail"), "--json", str(tmp_path / "r.json")],
-                          capture_output=True, text=True, timeout=300)
+                          capture_output=True, text=True, timeout=900)
     assert proc.returncode == 0, proc.stderr[-3000:]
     result = json.loads((tmp_path / "r.json").read_text())
     assert result["cases"] == 40
