@@ -46,7 +46,16 @@ def redeliver_swallowed_interrupts(signum: int) -> None:
         if unraisable.exc_type is not None and issubclass(unraisable.exc_type, KeyboardInterrupt):
             timer = threading.Timer(0.02, _thread.interrupt_main, (signum,))
             timer.daemon = True
-            timer.start()
+            for _ in range(8):
+                try:
+                    timer.start()
+                    break
+                except KeyboardInterrupt:
+                    # A second signal while the timer thread starts: swallowed here too
+                    # (an exception leaving the hook would be printed with a traceback);
+                    # the one redelivery stands for both once the thread is running.
+                    if timer.ident is not None:
+                        break
             return
         previous(unraisable)
 
