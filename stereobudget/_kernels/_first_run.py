@@ -4,7 +4,7 @@ Every kernel is ``njit(cache=True)``: numba compiles it on first use and keeps t
 machine code in a cache (``__pycache__`` beside the module, or ``$NUMBA_CACHE_DIR``),
 checked against the module's source file.  After an install or an upgrade the cache is
 empty and the first decode spends minutes compiling, silently; :func:`kernels_cached`
-looks at the cache index of the tree kernels every decoder uses, so the command line
+looks at the cache index of the kernels the decoders use, so the command line
 can say so before it starts.
 """
 
@@ -15,8 +15,9 @@ import logging
 
 log = logging.getLogger("stereobudget")
 
-#: Modules whose kernels every decode runs: if none of them is cached, nothing is.
-PROBE_MODULES = ("stereobudget.aggregate._tree",)
+#: Modules whose kernels the decoders run (the tree routes, the semi-global routes and their
+#: census cost): if none of them is cached, nothing is.
+PROBE_MODULES = ("stereobudget.aggregate._tree", "stereobudget.aggregate._semiglobal", "stereobudget.cost._census")
 #: Time of a full compile (Hybrid with the range estimate, one 8-bit RGB pair): 317 s of
 #: CPU on the project's 2-core machine (numba compiles on one thread), measured with an
 #: empty NUMBA_CACHE_DIR.

@@ -135,6 +135,13 @@ def has_template(template: str | None, option: str = "output") -> bool:
     return any(name is not None for _, name, _, _ in _template_parts(str(template), option))
 
 
+def uses_field(template: str | None, field: str, option: str = "output") -> bool:
+    """Whether ``template`` uses the field ``field`` (e.g. ``index``)."""
+    if template is None:
+        return False
+    return any(name == field for _, name, _, _ in _template_parts(str(template), option))
+
+
 def template_fields(source: str) -> dict:
     """The values of the template fields for input ``source``.
 
@@ -145,8 +152,11 @@ def template_fields(source: str) -> dict:
     return {"stem": path.stem, "name": path.name, "parent": str(path.parent)}
 
 
-def expand_template(template: str, source: str, *, option: str = "output") -> str:
+def expand_template(template: str, source: str, *, option: str = "output", index: int | None = None) -> str:
     """Fill ``{stem}``, ``{name}`` and ``{parent}`` of ``template`` from the input ``source``.
+
+    With ``index`` (a frame of a stream, from 0), ``{index}`` is filled too; it takes an
+    integer format such as ``{index:05d}``.
 
     Raises
     ------
@@ -155,14 +165,23 @@ def expand_template(template: str, source: str, *, option: str = "output") -> st
     """
     values = template_fields(source)
     pieces = []
+    known = "{stem}, {name}, {parent}" + (" or {index}" if index is not None else "")
     for literal, name, spec, conversion in _template_parts(str(template), option):
         pieces.append(literal)
         if name is None:
             continue
+        if name == "index" and index is not None and not conversion:
+            try:
+                pieces.append(format(index, spec or "d"))
+            except ValueError:
+                raise OptionError(f"{option} {template!r}: {{index:{spec}}} is not an integer format "
+                                  "(e.g. {index:05d})") from None
+            continue
         if name not in values or spec or conversion:
+            hint = ("; {index} numbers the frames of a stream" if name == "index" else "")
             raise OptionError(f"{option} {template!r}: unknown template field {{{name}"
                               f"{'!' + conversion if conversion else ''}{':' + spec if spec else ''}}}; "
-                              f"use {{stem}}, {{name}} or {{parent}} (a literal brace is {{{{ or }}}})")
+                              f"use {known} (a literal brace is {{{{ or }}}}){hint}")
         pieces.append(values[name])
     return "".join(pieces)
 
@@ -338,13 +357,16 @@ def outputs_up_to_date(outputs: Iterable[str], inputs: Iterable[str]) -> bool:
     return True
 
 
-def _prepare_outputs(outputs: list[str], inputs: list[str], *, overwrite: bool, make_dirs: bool) -> bool:
+def _prepare_outputs(outputs: list[str], inputs: list[str], *, overwrite: bool, make_dirs: bool,
+                     replace_existing: bool | None = None) -> bool:
     """Check the outputs of one job; return the ``overwrite`` flag to write them with.
 
     In a batch (``make_dirs``) missing folders are created, and a stale output is
-    replaced (the caller has already skipped up-to-date jobs).
+    replaced (the caller has already skipped up-to-date jobs); ``replace_existing=False``
+    creates the folders but still refuses an existing output without ``overwrite``.
     """
     replace = overwrite
+    replace_existing = make_dirs if replace_existing is None else replace_existing
     for out in outputs:
         if out is None or out == STDIO:
             continue
@@ -356,7 +378,7 @@ def _prepare_outputs(outputs: list[str], inputs: list[str], *, overwrite: bool, 
                 except OSError as exc:
                     raise OutputError(f"cannot create the folder {str(parent)!r}: {exc.strerror or exc}",
                                       path=out) from None
-            if os.path.exists(out):
+            if replace_existing and os.path.exists(out):
                 replace = True      # stale (or partner of a missing output): redo as make would
     for out in outputs:
         if out is not None:
@@ -592,6 +614,19 @@ def _check_output_formats(job: DecodeJob) -> None:
                           "use .png, .tif or .tiff", path=job.right)
 
 
+def check_job_outputs(job: DecodeJob) -> None:
+    """Refuse a job with no output, two outputs on one file, or an unknown output format."""
+    outputs = job.outputs
+    if not outputs:
+        raise OptionError("nothing to write: give --disparity, --preview and/or --right")
+    seen = {}
+    for kind, path in outputs.items():
+        if path != STDIO and path in seen:
+            raise OptionError(f"--{seen[path]} and --{kind} name the same file", path=path)
+        seen[path] = kind
+    _check_output_formats(job)
+
+
 def decode_file(job: DecodeJob, *, recipe: dict | None = None) -> dict:
     """Decode one pair and write its outputs; raises on any problem.
 
@@ -613,14 +648,7 @@ def decode_file(job: DecodeJob, *, recipe: dict | None = None) -> dict:
     if job.left == STDIO and job.samples == STDIO:
         raise OptionError("only one of LEFT and SAMPLES can be '-' (standard input)")
     outputs = job.outputs
-    if not outputs:
-        raise OptionError("nothing to write: give --disparity, --preview and/or --right")
-    seen = {}
-    for kind, path in outputs.items():
-        if path != STDIO and path in seen:
-            raise OptionError(f"--{seen[path]} and --{kind} name the same file", path=path)
-        seen[path] = kind
-    _check_output_formats(job)
+    check_job_outputs(job)
     inputs = [job.left, job.samples]
     overwrite = _prepare_outputs(list(outputs.values()), inputs, overwrite=job.overwrite,
                                  make_dirs=job.batch)
@@ -632,7 +660,22 @@ def decode_file(job: DecodeJob, *, recipe: dict | None = None) -> dict:
     left, _ = imageio.read_image(job.left)
     samples = load_samples(job.samples)
     timings["read"] = time.perf_counter() - t
+    return decode_arrays(left, samples, job, left_name=display_name(job.left),
+                         samples_name=display_name(job.samples), overwrite=overwrite, timings=timings,
+                         start=start, recipe=recipe, announce=not job.batch)
 
+
+def decode_arrays(left, samples, job: DecodeJob, *, left_name: str, samples_name: str, overwrite: bool,
+                  timings: dict, start: float, recipe: dict | None = None, announce: bool = False) -> dict:
+    """The part of :func:`decode_file` after reading: decode ``left`` + ``samples``, write ``job``'s outputs.
+
+    The outputs have been checked (``overwrite`` is the flag to write them with);
+    ``timings`` holds the stages so far and ``start`` the job's start
+    (``time.perf_counter``).  ``announce`` says before the first kernel runs that numba
+    may compile for minutes.  Returns the summary of :func:`decode_file`.
+    """
+    from ..io import _images as imageio
+    outputs = job.outputs
     # The decoder (numba) loads only once both inputs have been read successfully.
     import math
 
@@ -643,7 +686,6 @@ def decode_file(job: DecodeJob, *, recipe: dict | None = None) -> dict:
     from ..errors import MismatchError
     _limit_numba_threads(job.threads)
     t = time.perf_counter()
-    left_name, samples_name = display_name(job.left), display_name(job.samples)
     from ..decoding import _checks as checks
     from ..decoding import _disprange as disprange
     auto = disprange.is_auto(job.max_disp)
@@ -651,7 +693,7 @@ def decode_file(job: DecodeJob, *, recipe: dict | None = None) -> dict:
         # Sizes and types first (the estimate needs them to agree), then the range.
         decoders.check_inputs(left, samples, min_disp=0, max_disp=1)
         timings["validate"] = time.perf_counter() - t
-        if not job.batch:
+        if announce:
             # After an install or upgrade numba compiles for minutes: say so before the
             # first kernel runs (a batch says it once, in the command).
             from .._kernels._first_run import announce_first_compile

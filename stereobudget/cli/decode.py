@@ -81,6 +81,62 @@ def _pairs_from_arguments(inputs, left_dir, samples_dir, manifest):
     return pair_by_stem(lefts, samples)
 
 
+def _is_stream(inputs, left_dir, samples_dir, manifest, templates: dict) -> bool:
+    """Whether LEFT SAMPLES name a stream of frames (see :func:`stereobudget.batch.decode_stream`).
+
+    SAMPLES must be one source (a file or ``-``); it is a stream when an output or LEFT
+    names frames by ``{index}``, when SAMPLES is ``-`` and an output goes to ``-``, or
+    when the file holds several frames.
+
+    Raises
+    ------
+    OptionError
+        A file of several frames whose outputs are plain file names, or LEFT on ``-``.
+    """
+    from stereobudget.batch import uses_field
+    from stereobudget.io import holds_several_frames
+
+    if len(inputs) != 2 or left_dir is not None or samples_dir is not None or manifest is not None:
+        return False
+    left, samples = inputs
+    indexed = uses_field(left, "index", "LEFT") or any(
+        uses_field(value, "index", f"--{name}") for name, value in templates.items())
+    several = holds_several_frames(samples)
+    stream = indexed or several or (samples == "-" and "-" in templates.values())
+    if not stream:
+        return False
+    if left == "-":
+        raise OptionError("LEFT cannot be '-' for a stream of frames: give an image, a folder or glob of "
+                          "images, or a template such as 'L/{index:05d}.png'")
+    if several:
+        plain = [f"--{name}" for name, value in templates.items()
+                 if value != "-" and not uses_field(value, "index", f"--{name}")]
+        if plain:
+            raise OptionError(f"{samples} holds several .sbs frames (a stream) but {', '.join(plain)} names "
+                              "one file; put {index} in the name (e.g. 'D/{index:05d}.pfm') or write to '-'")
+    return True
+
+
+def _decode_stream(left, samples, templates: dict, *, as_json: bool, **options) -> None:
+    """``sb-decode`` of a stream: every frame in this process (stereobudget.batch.decode_stream)."""
+    import time
+
+    from stereobudget.batch import decode_stream
+
+    start = time.perf_counter()
+    frames = 0
+    for summary in decode_stream(left, samples, **templates, **options):
+        frames += 1
+        log.info("%s + %s -> %s: %s, disparity %d..%d (%s), %.2f s", summary["left"], summary["samples"],
+                 ", ".join(summary["outputs"].values()), summary["method"], summary["min_disp"],
+                 summary["max_disp"], summary["range_source"], summary["timings"]["total"])
+        report_warnings(summary, label=f"frame {summary['frame']}")
+        if as_json:
+            common.emit_json(summary)
+    seconds = time.perf_counter() - start
+    log.info("%d frame(s) in %.2f s (%.2f frames/s)", frames, seconds, frames / max(seconds, 1e-9))
+
+
 @click.command(context_settings={"help_option_names": ["-h", "--help"]})
 @click.argument("inputs", nargs=-1, metavar="LEFT SAMPLES")
 @click.option("--left-dir", metavar="DIR", default=None,
@@ -133,6 +189,12 @@ def decode_command(inputs, left_dir, samples_dir, manifest, max_disp, min_disp, 
     many pixels sit at the range limits, when the result does not reproduce the
     samples, and when the pair looks swapped or not rectified.
 
+    SAMPLES may be a stream of .sbs frames (a file of concatenated frames, or '-'):
+    each frame is decoded in this process as it arrives, against LEFT (one image for
+    all frames, a folder or glob of images in name order, or 'L/{index:05d}.png'), and
+    written through {index} (from 0) in the output names, or to '-' one image after
+    another (--disparity -: PFM frames, or 16-bit PNG frames with --format png).
+
     \b
     Examples:
       sb-decode left.png right.sbs --disparity d.pfm -v        # range estimated
@@ -143,6 +205,8 @@ def decode_command(inputs, left_dir, samples_dir, manifest, max_disp, min_disp, 
       sb-decode --left-dir L --samples-dir S --max-disp 60 \\
           --disparity 'D/{stem}.pfm' --right 'R/{stem}.png' -j 2
       sb-decode --manifest pairs.csv --max-disp 60 --disparity 'D/{stem}.pfm' --scheduler local
+      cam | sb-encode - --raw 640x480 --pix-fmt gray8 -o - \\
+          | sb-decode 'L/{index:05d}.png' - --max-disp 60 --disparity - > d.pfms
     """
     from stereobudget.batch import DecodeJob, check_distinct_outputs, decode_file, decode_job, has_template
 
@@ -156,6 +220,19 @@ def decode_command(inputs, left_dir, samples_dir, manifest, max_disp, min_disp, 
                                                   ("right", right)) if value is not None}
     if not templates:
         raise OptionError("nothing to write: give --disparity, --preview and/or --right")
+    if _is_stream(inputs, left_dir, samples_dir, manifest, templates):
+        if scheduler is not None:
+            raise OptionError("a stream is decoded in order, in one process: --scheduler applies to "
+                              "batches of files")
+        if disparity_format is not None and disparity != "-":
+            raise OptionError("--format sets the format of --disparity - (standard output); a file's format "
+                              "follows its extension")
+        if as_json and "-" in templates.values():
+            raise OptionError("--json cannot be combined with an output on '-' (stdout carries the images)")
+        _decode_stream(inputs[0], inputs[1], templates, max_disp=max_disp, min_disp=min_disp, method=method,
+                       overwrite=overwrite, max_memory=max_memory, disparity_format=disparity_format,
+                       as_json=as_json)
+        return
     templated = {name: has_template(value, f"--{name}") for name, value in templates.items()}
     pairs = _pairs_from_arguments(inputs, left_dir, samples_dir, manifest)
     batch = len(pairs) > 1 or any(templated.values())

@@ -90,16 +90,84 @@ def build_coding(*, codec: str, value_bits: int | None, quality: int | None, siz
     return coding
 
 
+def _stream_inputs(images, output: str, *, raw_size, pix_fmt) -> list[str] | None:
+    """The inputs of a frame stream, or None when this run is one file or a batch of files.
+
+    A stream: a raw input from standard input (a camera pipe), a raw file longer than
+    one frame, an ``-o`` naming frames by ``{index}``, or several images to ``-o -``.
+    """
+    from stereobudget.batch._batch import IMAGE_EXTENSIONS, expand_inputs, uses_field
+
+    per_frame = uses_field(output, "index", "-o")
+    if raw_size is not None:
+        if len(images) != 1:
+            if per_frame or output == "-":
+                raise OptionError(f"a raw stream is one input (a file or '-'), got {len(images)}")
+            return None
+        source = images[0]
+        if source == "-" or per_frame:
+            return [source]
+        from stereobudget.io import raw_frame_layout
+        channels, value_bytes, _ = raw_frame_layout(width=raw_size[0], height=raw_size[1], pix_fmt=pix_fmt,
+                                                    name=source)
+        import os
+        try:
+            longer = os.path.getsize(source) > raw_size[0] * raw_size[1] * channels * value_bytes
+        except OSError:
+            return None      # the single-file path reports it
+        return [source] if longer else None
+    if not (per_frame or output == "-"):
+        return None
+    inputs = expand_inputs(images, extensions=IMAGE_EXTENSIONS, what="image")
+    if len(inputs) > 1 and "-" in inputs:
+        raise OptionError("'-' (standard input) works with a single input only")
+    return inputs if len(inputs) > 1 or per_frame else None
+
+
+def _encode_stream(inputs, output, *, pattern, raw_size, pix_fmt, overwrite, coding, as_json) -> None:
+    """``sb-encode`` of a stream: every frame in this process, in order (stereobudget.batch.encode_stream)."""
+    import time
+
+    from stereobudget.batch import encode_stream
+
+    start = time.perf_counter()
+    frames = 0
+    for item in encode_stream(inputs, output, pattern=pattern, raw_size=raw_size, pix_fmt=pix_fmt,
+                              overwrite=overwrite, coding=coding):
+        frames += 1
+        log.info("%s -> %s: %d samples, %d bytes", item["source"], item["output"], item["sample_count"],
+                 item["file_size"])
+        if as_json:
+            common.emit_json(item)
+    seconds = time.perf_counter() - start
+    if raw_size is not None and frames > 1 and output != "-" and "{" not in output:
+        # A wrong --raw size also reads as several frames: say what was written.
+        log.warning("%s: %d frames of %dx%d %s, written as one %d-frame stream to %s", inputs[0], frames,
+                    raw_size[0], raw_size[1], pix_fmt, frames, output)
+    log.info("%d frame(s) in %.3f s (%.1f frames/s)", frames, seconds, frames / max(seconds, 1e-9))
+
+
 def _show_info(path, *, verify: bool) -> None:
-    from stereobudget.io import probe
-    common.emit_json(probe(path, verify_payload=verify))
+    """One JSON line per frame: one for a file, one per frame of a stream (or of standard input)."""
+    from stereobudget.io import holds_several_frames, probe
+    if path != "-" and not holds_several_frames(path):
+        common.emit_json(probe(path, verify_payload=verify))
+        return
+    from stereobudget.io import sample_frames
+    from stereobudget.io._stream import frame_label
+    name = "<stdin>" if path == "-" else path
+    for index, frame in enumerate(sample_frames(path)):
+        info = probe(frame, verify_payload=verify, name=frame_label(name, index) if index else name)
+        info["frame"] = index
+        common.emit_json(info)
 
 
 @click.command(context_settings={"help_option_names": ["-h", "--help"]})
 @click.argument("images", nargs=-1, metavar="RIGHT_IMAGE...")
 @click.option("-o", "--output", metavar="OUT.sbs",
               help="Sample file to write ('-' = stdout); with several inputs a template such as "
-                   "'out/{stem}.sbs' ({stem}, {name}, {parent} of each input).")
+                   "'out/{stem}.sbs' ({stem}, {name}, {parent} of each input); for the frames of a "
+                   "stream 'out/{index:05d}.sbs'.")
 @click.option("--stride", type=_U16, default=5, show_default=True,
               help="Grid spacing in pixels, both directions (epsilon ~ 1/stride^2).")
 @click.option("--stride-x", type=_U16, default=None, help="Horizontal spacing (overrides --stride).")
@@ -114,7 +182,7 @@ def _show_info(path, *, verify: bool) -> None:
 @click.option("--seed", type=click.IntRange(0, 2 ** 64 - 1), default=None,
               help="Seed of the jitter/fps/adaptive_fps pattern (0..2^64-1).  [default: 0]")
 @click.option("--raw", "raw_size", metavar="WxH", default=None,
-              help="Input is one headerless frame of this size (needs --pix-fmt).")
+              help="Input is headerless frames of this size, one or a stream of them (needs --pix-fmt).")
 @click.option("--pix-fmt", type=click.Choice(_RAW_PIX_FMTS), default=None,
               help="Pixel format of a --raw frame.")
 @click.option("--codec", type=click.Choice(["raw", "lossless", "deflate", "webp_lossless", "jxl_lossless",
@@ -154,6 +222,8 @@ def encode_command(images, output, stride, stride_x, stride_y, offset, pattern, 
       sb-encode right.png -o right.sbs --stride 4      # epsilon = 6.25 %
       sb-encode - -o - < right.png > right.sbs         # stdin to stdout
       sb-encode frame.raw --raw 640x480 --pix-fmt bgr24 -o frame.sbs
+      cam | sb-encode - --raw 640x480 --pix-fmt bgr24 -o - | ...   # a stream of frames
+      sb-encode frames.raw --raw 640x480 --pix-fmt gray8 -o 'S/{index:05d}.sbs'
       sb-encode right.png -o right.sbs --stride 4 --codec lossless
       sb-encode right.png -o right.sbs --size 20000    # densest grid in 20000 bytes
       sb-encode --info right.sbs                       # header as JSON
@@ -163,6 +233,11 @@ def encode_command(images, output, stride, stride_x, stride_y, offset, pattern, 
     made from the same input with the same options and version is skipped (a rerun
     resumes; a hidden .NAME.sbrecipe beside it records what made it), any other is
     redone; --overwrite redoes all.  Exit status 1 if any file failed.
+
+    A raw input holding several frames (or '-', a camera pipe) is a stream: its frames
+    go, in order and as they arrive, to -o - one after another, to one file per frame
+    through {index} (from 0, e.g. {index:05d}), or to one stream file.  Several images
+    with -o - make a stream too.  sb-decode reads such streams.
     """
     if info_file is not None:
         if images or output is not None:
@@ -191,6 +266,11 @@ def encode_command(images, output, stride, stride_x, stride_y, offset, pattern, 
     coding = build_coding(codec=codec, value_bits=value_bits, quality=quality, size=size_bytes,
                           size_fraction=size_fraction, pattern=pattern)
 
+    stream_inputs = _stream_inputs(images, output, raw_size=size, pix_fmt=pix_fmt)
+    if stream_inputs is not None:
+        _encode_stream(stream_inputs, output, pattern=sampling, raw_size=size, pix_fmt=pix_fmt,
+                       overwrite=overwrite, coding=coding, as_json=as_json)
+        return
     image, batch_jobs = _batch.plan_encode(images, output, pattern=sampling, raw_size=size, pix_fmt=pix_fmt,
                                            overwrite=overwrite, coding=coding)
     if batch_jobs is not None:

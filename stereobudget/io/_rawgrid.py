@@ -27,6 +27,23 @@ RAW_FORMATS = {
 }
 
 
+def raw_frame_layout(*, width: int, height: int, pix_fmt: str, name: str = "<bytes>"):
+    """Channels, bytes per value and channel order of a ``pix_fmt`` frame; checks format and size.
+
+    Raises
+    ------
+    ImageReadError
+        Unknown ``pix_fmt`` or a size outside the limits.
+    """
+    if pix_fmt not in RAW_FORMATS:
+        raise ImageReadError(f"unknown raw pixel format {pix_fmt!r}; expected one of "
+                             f"{', '.join(RAW_FORMATS)}", path=name)
+    problem = dimension_problem(width, height)
+    if problem:
+        raise ImageReadError(f"raw frame: {problem}", path=name)
+    return RAW_FORMATS[pix_fmt]
+
+
 def check_raw_frame(data, *, width: int, height: int, pix_fmt: str, name: str = "<bytes>"):
     """Validate one headerless frame (format, size, byte count); no pixel is read.
 
@@ -39,13 +56,7 @@ def check_raw_frame(data, *, width: int, height: int, pix_fmt: str, name: str = 
     ImageReadError
         Unknown ``pix_fmt``, bad size, or a byte count other than one frame.
     """
-    if pix_fmt not in RAW_FORMATS:
-        raise ImageReadError(f"unknown raw pixel format {pix_fmt!r}; expected one of "
-                             f"{', '.join(RAW_FORMATS)}", path=name)
-    problem = dimension_problem(width, height)
-    if problem:
-        raise ImageReadError(f"raw frame: {problem}", path=name)
-    channels, value_bytes, order = RAW_FORMATS[pix_fmt]
+    channels, value_bytes, order = raw_frame_layout(width=width, height=height, pix_fmt=pix_fmt, name=name)
     expected = width * height * channels * value_bytes
     if len(data) != expected:
         what = "less than one frame" if len(data) < expected else "more than one frame"

@@ -424,6 +424,11 @@ def _parse_header(data, name: str, *, file_size: int | None = None) -> dict:
         raise TruncatedFileError(f"file is truncated: payload has {actual_payload} of {declared} bytes "
                                  f"({declared - actual_payload} missing)", path=name)
     if actual_payload > declared:
+        end = header_length + declared
+        if bytes(data[end:end + len(MAGIC)]) == MAGIC:
+            raise CorruptPayloadError(f"another .sbs frame follows the first one at byte {end}: this is a "
+                                      "stream of frames; sb-decode takes it with {index} in the output names "
+                                      "or an output on '-' (docs/cli.md, \"Frame streams\")", path=name)
         raise CorruptPayloadError(f"{actual_payload - declared} unexpected bytes after the "
                                   f"{declared}-byte payload", path=name)
     fields["file_size"] = size
@@ -758,21 +763,42 @@ def encode_file(source, output, *, pattern: SamplingPattern, raw_size: tuple[int
     check_output_path(output, [source], overwrite)
     name = display_name(source)
     log.debug("reading %s", name)
+    coding = dict(codec=codec, value_bits=value_bits, quality=quality, size=size, size_fraction=size_fraction)
     if raw_size is not None:
         if pix_fmt is None:
             raise OptionError("a raw frame needs a pixel format (--pix-fmt)")
-        data = read_input_bytes(source, error=ImageReadError)
+        frame = read_input_bytes(source, error=ImageReadError)
+    else:
+        from . import _images as imageio
+        frame = imageio.read_image(source, name=name)
+    data, report = encode_frame(frame, name=name, output=output, pattern=pattern, raw_size=raw_size,
+                                pix_fmt=pix_fmt, **coding)
+    write_output_bytes(output, data, overwrite=overwrite)
+    return report
+
+
+def encode_frame(frame, *, name: str, output, pattern: SamplingPattern, raw_size: tuple[int, int] | None = None,
+                 pix_fmt: str | None = None, codec: str = "raw", value_bits: int | None = None,
+                 quality: int | None = None, size: int | None = None,
+                 size_fraction: float | None = None) -> tuple[bytes, EncodeReport]:
+    """The ``.sbs`` bytes of one frame already in memory, and their report.
+
+    ``frame`` is the bytes of one headerless frame when ``raw_size`` is given, else an
+    ``(image, channel_order)`` pair as :func:`stereobudget.io.read_image` returns; the
+    other arguments are those of :func:`encode_file` (``output`` only names the report's
+    destination).  A raw frame on a ``grid`` with the raw coding is packed without numpy.
+    """
+    if raw_size is not None:
         plain = codec == "raw" and value_bits is None and size is None and size_fraction is None
         if pattern.is_regular_grid and plain:
             # The camera's common case, without numpy: bytes slicing (see rawgrid).
-            return _encode_raw_grid(data, output, name=name, raw_size=raw_size, pix_fmt=pix_fmt,
-                                    pattern=pattern, overwrite=overwrite)
+            return _encode_raw_grid(frame, output, name=name, raw_size=raw_size, pix_fmt=pix_fmt,
+                                    pattern=pattern)
         from . import _images as imageio  # numpy; OpenCV loads only for encoded images
-        image, channel_order = imageio.read_raw(data, width=raw_size[0], height=raw_size[1],
+        image, channel_order = imageio.read_raw(frame, width=raw_size[0], height=raw_size[1],
                                                 pix_fmt=pix_fmt, name=name)
     else:
-        from . import _images as imageio
-        image, channel_order = imageio.read_image(source, name=name)
+        image, channel_order = frame
     height, width = image.shape[:2]
     if size_fraction is not None:
         size = int(size_fraction * image.size * image.dtype.itemsize)
@@ -796,15 +822,14 @@ def encode_file(source, output, *, pattern: SamplingPattern, raw_size: tuple[int
         except OptionError as exc:
             raise OptionError(exc.message, path=exc.path or name) from None
         coding = {"codec": used, "value_bits": bits, "quality": q}
-    write_output_bytes(output, data, overwrite=overwrite)
-    return _report(name, output, width=width, height=height, channels=sample_set.channels,
-                   channel_order=channel_order, dtype=str(sample_set.dtype), pattern=pattern,
-                   sample_count=sample_set.values.shape[0], file_size=len(data), **coding)
+    return data, _report(name, output, width=width, height=height, channels=sample_set.channels,
+                         channel_order=channel_order, dtype=str(sample_set.dtype), pattern=pattern,
+                         sample_count=sample_set.values.shape[0], file_size=len(data), **coding)
 
 
 def _encode_raw_grid(data, output, *, name: str, raw_size: tuple[int, int], pix_fmt: str,
-                     pattern: SamplingPattern, overwrite: bool) -> EncodeReport:
-    """:func:`encode_file` for a raw frame on a ``grid``: same checks, errors and bytes, no numpy."""
+                     pattern: SamplingPattern) -> tuple[bytes, EncodeReport]:
+    """:func:`encode_frame` for a raw frame on a ``grid``: same checks, errors and bytes, no numpy."""
     from ._rawgrid import check_raw_frame, grid_payload
 
     width, height = raw_size
@@ -817,9 +842,9 @@ def _encode_raw_grid(data, output, *, name: str, raw_size: tuple[int, int], pix_
                            offset_x=pattern.offset_x, offset_y=pattern.offset_y)
     data = _pack_file(width=width, height=height, channel_order=channel_order, dtype_code=value_bytes,
                       pattern=pattern, sample_count=n, payload=payload)
-    write_output_bytes(output, data, overwrite=overwrite)
-    return _report(name, output, width=width, height=height, channels=channels, channel_order=channel_order,
-                   dtype=_DTYPE_NAMES[value_bytes], pattern=pattern, sample_count=n, file_size=len(data))
+    return data, _report(name, output, width=width, height=height, channels=channels,
+                         channel_order=channel_order, dtype=_DTYPE_NAMES[value_bytes], pattern=pattern,
+                         sample_count=n, file_size=len(data))
 
 
 def _count_samples(pattern: SamplingPattern, width: int, height: int, name: str) -> int:

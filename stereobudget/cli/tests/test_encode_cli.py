@@ -163,8 +163,12 @@ def test_raw_frames_from_stdin(tmp_path, pix_fmt, channels, dtype, order):
 def test_raw_frame_of_the_wrong_size(tmp_path):
     proc = run("-", "--raw", "14x10", "--pix-fmt", "rgb24", "-o", tmp_path / "x.sbs",
                stdin=bytes(14 * 10 * 3 + 5))
-    assert_clean_error(proc, ImageReadError.exit_code, "<stdin>", "exactly 420 bytes, got 425")
+    # Standard input is a stream of frames: the cut one is named, and nothing is written.
+    assert_clean_error(proc, ImageReadError.exit_code, "<stdin>", "frames are 420 bytes each",
+                       "frame 1 is cut short at 5 bytes")
     assert not (tmp_path / "x.sbs").exists()
+    short = run("-", "--raw", "14x10", "--pix-fmt", "rgb24", "-o", tmp_path / "x.sbs", stdin=bytes(400))
+    assert_clean_error(short, ImageReadError.exit_code, "<stdin>", "exactly 420 bytes, got 400")
 
 
 def _loaded_heavy_modules(args) -> list:

@@ -1,0 +1,240 @@
+"""Frame streams in one process: a camera's raw frames to ``.sbs`` frames, ``.sbs`` frames to disparity.
+
+A camera sends frames continuously; starting a process per frame would spend most of
+the time on imports (and, on the host, on loading the compiled kernels).  Here every
+frame of a stream goes through the same process, in order, as it arrives:
+
+* :func:`encode_stream` -- ``sb-encode`` of a raw stream (``--raw WxH`` input holding
+  any number of frames) or of several images, to standard output (frames one after
+  another, flushed as each is done), to one stream file (written atomically once the
+  stream ends), or to one file per frame through a template with ``{index}``.
+* :func:`decode_stream` -- ``sb-decode`` of a stream of concatenated ``.sbs`` frames (a
+  file or standard input) against one left image, a folder or glob of left images (in
+  name order, one per frame) or a ``{index}`` template; outputs go through ``{index}``
+  templates, or to standard output as one image after another (``--disparity -``: PFM
+  frames, or 16-bit PNG frames with ``--format png``).
+
+Frames are numbered from 0.  An error ends the stream with the error's own exit code and
+names the frame; the frames before it are complete, every file written whole.
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+from typing import Iterable, Iterator
+
+from ..errors import MismatchError, OptionError
+from ..io._atomic import STDIO, atomic_write, display_name, write_output_bytes
+from ..io._stream import frame_label, raw_frames, sample_frames
+from ._batch import (IMAGE_EXTENSIONS, DecodeJob, _prepare_outputs, check_job_outputs, expand_inputs,
+                     expand_template, uses_field)
+
+log = logging.getLogger("stereobudget")
+
+
+def _frame_output(template: str | None, *, source: str, index: int, option: str) -> str | None:
+    """``template`` for frame ``index`` (``-`` and names without fields stay as they are)."""
+    if template is None or template == STDIO:
+        return template
+    return expand_template(template, source, option=option, index=index)
+
+
+def _one_file_per_frame(template: str | None, option: str) -> bool:
+    return template is not None and template != STDIO and uses_field(template, "index", option)
+
+
+# =====================================================================================
+# Camera side
+# =====================================================================================
+
+def _encode_inputs(sources: list[str], *, raw_size, pix_fmt) -> Iterator[tuple[str, object]]:
+    """(name, frame) of every frame: all frames of one raw stream, or one image per source."""
+    if raw_size is not None:
+        if len(sources) != 1:
+            raise OptionError("a raw stream is one input (a file or '-'); got "
+                              f"{len(sources)}")
+        name = display_name(sources[0])
+        for index, frame in enumerate(raw_frames(sources[0], width=raw_size[0], height=raw_size[1],
+                                                 pix_fmt=pix_fmt)):
+            yield frame_label(name, index) if index else name, frame
+        return
+    from ..io import _images as imageio
+    for source in sources:
+        name = display_name(source)
+        yield name, imageio.read_image(source, name=name)
+
+
+def encode_stream(sources: Iterable[str], output: str, *, pattern, raw_size: tuple[int, int] | None = None,
+                  pix_fmt: str | None = None, overwrite: bool = False,
+                  coding: dict | None = None) -> Iterator[dict]:
+    """Encode a stream of right frames into ``.sbs`` frames, one at a time; yield a report per frame.
+
+    Parameters
+    ----------
+    sources : list of str
+        With ``raw_size``: one raw stream (a file or ``-``) of any number of frames.
+        Without: images, one frame each, in the order given.
+    output : str
+        ``-``: the frames one after another on standard output, each flushed when done;
+        a template using ``{index}`` (e.g. ``'S/{index:05d}.sbs'``): one file per frame;
+        any other name: one stream file holding every frame, written atomically when the
+        stream ends.
+    pattern, raw_size, pix_fmt, coding
+        As :func:`stereobudget.io.encode_file` (``coding``: its keyword arguments).
+    overwrite : bool
+        Replace existing outputs.
+
+    Yields
+    ------
+    dict
+        The frame's :class:`~stereobudget.io.EncodeReport` fields, ``frame`` (its index)
+        and ``output``.
+    """
+    from ..io._samples import encode_frame
+
+    sources = list(sources)
+    per_frame = _one_file_per_frame(output, "-o")
+    first_source = display_name(sources[0]) if sources else "-"
+
+    def frames():
+        for index, (name, frame) in enumerate(_encode_inputs(sources, raw_size=raw_size, pix_fmt=pix_fmt)):
+            target = _frame_output(output, source=sources[min(index, len(sources) - 1)] if raw_size is None
+                                   else first_source, index=index, option="-o")
+            data, report = encode_frame(frame, name=name, output=target, pattern=pattern, raw_size=raw_size,
+                                        pix_fmt=pix_fmt, **(coding or {}))
+            yield index, target, data, report
+
+    def reported(index, report):
+        item = report.as_dict()
+        item["frame"] = index
+        return item
+
+    if output == STDIO or per_frame:
+        for index, target, data, report in frames():
+            if per_frame:
+                _prepare_outputs([target], sources, overwrite=overwrite, make_dirs=True, replace_existing=False)
+            write_output_bytes(target, data, overwrite=overwrite)
+            yield reported(index, report)
+        return
+    # One stream file: nothing appears at the path until the last frame is in.
+    _prepare_outputs([output], sources, overwrite=overwrite, make_dirs=False)
+    items = []
+    with atomic_write(output, overwrite=overwrite) as handle:
+        for index, _, data, report in frames():
+            handle.write(data)
+            items.append(reported(index, report))
+    yield from items
+
+
+# =====================================================================================
+# Host side
+# =====================================================================================
+
+class _LeftFrames:
+    """The left image of each frame: one image for all, a list in name order, or a template."""
+
+    def __init__(self, left: str):
+        self.template = left if uses_field(left, "index", "LEFT") else None
+        self.paths = None if self.template else expand_inputs([left], extensions=IMAGE_EXTENSIONS, what="image")
+        self._cached = None
+
+    def path(self, index: int) -> str:
+        if self.template is not None:
+            return expand_template(self.template, self.template, option="LEFT", index=index)
+        if len(self.paths) == 1:
+            return self.paths[0]
+        if index >= len(self.paths):
+            raise MismatchError(f"the stream has more frames than the {len(self.paths)} left images given "
+                                f"(frame {index} has none)", path=display_name(self.paths[-1]))
+        return self.paths[index]
+
+    def read(self, index: int):
+        from ..io import _images as imageio
+        path = self.path(index)
+        if self.template is None and len(self.paths) == 1:
+            if self._cached is None:
+                self._cached = imageio.read_image(path)[0]
+            return path, self._cached
+        return path, imageio.read_image(path)[0]
+
+    def unused(self, frames: int) -> int:
+        """Left images given that no frame used."""
+        if self.template is not None or len(self.paths) == 1:
+            return 0
+        return max(0, len(self.paths) - frames)
+
+
+def decode_stream(left: str, samples: str, *, disparity: str | None = None, preview: str | None = None,
+                  right: str | None = None, max_disp=None, min_disp: int | None = None,
+                  method: str | None = None, overwrite: bool = False, max_memory: int | None = None,
+                  disparity_format: str | None = None) -> Iterator[dict]:
+    """Decode every frame of a stream of ``.sbs`` frames in this process; yield a summary per frame.
+
+    Parameters
+    ----------
+    left : str
+        The left image of every frame; a folder or quoted glob of left images (taken in
+        name order, one per frame); or a template using ``{index}`` (``'L/{index:05d}.png'``).
+    samples : str
+        A file of concatenated ``.sbs`` frames, or ``-`` for standard input (read one frame
+        at a time, so an endless pipe is decoded as it arrives).
+    disparity, preview, right : str, optional
+        Outputs, as in :class:`~stereobudget.batch.DecodeJob`.  A template using ``{index}``
+        (plus ``{stem}``/``{name}``/``{parent}`` of the frame's left image) writes one file
+        per frame; ``-`` writes every frame to standard output, one image after another.
+        A plain file name holds one frame only: a second frame is an error.
+    max_disp, min_disp, method, overwrite, max_memory, disparity_format
+        As in :class:`~stereobudget.batch.DecodeJob`; ``max_disp="auto"`` estimates the
+        range of every frame on its own.
+
+    Yields
+    ------
+    dict
+        The summary of :func:`stereobudget.batch.decode_file` for the frame, with ``frame``.
+
+    Raises
+    ------
+    StereoBudgetError
+        The first problem, naming its frame; earlier frames have been written.
+    """
+    from ..io._samples import read_samples
+    from ._batch import decode_arrays
+
+    templates = {"disparity": disparity, "preview": preview, "right": right}
+    lefts = _LeftFrames(left)
+    stream_name = display_name(samples)
+    inputs = [samples] if samples != STDIO else []
+    index = -1
+    for index, frame in enumerate(sample_frames(samples)):
+        start = time.perf_counter()
+        label = frame_label(stream_name, index) if index else stream_name
+        left_path = lefts.path(index)
+        outputs = {kind: _frame_output(value, source=left_path, index=index, option=f"--{kind}")
+                   for kind, value in templates.items()}
+        if index == 1:
+            plain = [f"--{kind}" for kind, value in templates.items()
+                     if value not in (None, STDIO) and not _one_file_per_frame(value, f"--{kind}")]
+            if plain:
+                raise OptionError(f"the stream has a second frame but {', '.join(plain)} names one file; "
+                                  "put {index} in the name (e.g. 'out/{index:05d}.pfm') or write to '-'",
+                                  path=stream_name)
+        job = DecodeJob(left=left_path, samples=label, method=method, max_disp=max_disp, min_disp=min_disp,
+                        overwrite=overwrite, max_memory=max_memory, disparity_format=disparity_format,
+                        **outputs)
+        check_job_outputs(job)
+        replace = _prepare_outputs(list(job.outputs.values()), [left_path, *inputs], overwrite=overwrite,
+                                   make_dirs=True, replace_existing=False)
+        t = time.perf_counter()
+        left_path, left_image = lefts.read(index)
+        sample_set = read_samples(frame, source=label)
+        timings = {"read": time.perf_counter() - t}
+        summary = decode_arrays(left_image, sample_set, job, left_name=display_name(left_path),
+                                samples_name=label, overwrite=replace, timings=timings, start=start,
+                                announce=index == 0)
+        summary["frame"] = index
+        yield summary
+    unused = lefts.unused(index + 1)
+    if unused:
+        log.warning("warning: the stream ended after %d frame(s); %d left image(s) were not used",
+                    index + 1, unused)

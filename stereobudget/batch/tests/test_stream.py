@@ -1,0 +1,114 @@
+"""Streams in one process: encode_stream and decode_stream give what one file at a time gives."""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+import pytest
+
+from stereobudget.batch import DecodeJob, decode_file, decode_stream, encode_stream, expand_template
+from stereobudget.errors import MismatchError, OptionError, TruncatedFileError
+from stereobudget.io import encode_file, read_disparity, sample_frames
+from stereobudget.sampling import SamplingPattern
+from stereobudget.scenes import make_scene
+
+GRID = SamplingPattern("grid", 5, 5)
+
+
+@pytest.fixture(scope="module")
+def frames(tmp_path_factory):
+    """Three small pairs (left PNGs L/0..2.png) and their right images as one raw rgb24 stream."""
+    folder = tmp_path_factory.mktemp("stream")
+    (folder / "L").mkdir()
+    rights = []
+    for index, kind in enumerate(("slanted", "planes", "fine_texture")):
+        scene = make_scene(kind, height=64, width=96, max_disp=16, seed=index)
+        assert cv2.imwrite(str(folder / "L" / f"{index}.png"), np.ascontiguousarray(scene.left[:, :, ::-1]))
+        assert cv2.imwrite(str(folder / f"r{index}.png"), np.ascontiguousarray(scene.right[:, :, ::-1]))
+        rights.append(scene.right)
+    (folder / "rights.raw").write_bytes(b"".join(np.ascontiguousarray(r).tobytes() for r in rights))
+    return folder
+
+
+def test_template_index_takes_an_integer_format():
+    assert expand_template("D/{index:05d}_{stem}.pfm", "L/a.png", index=7) == "D/00007_a.pfm"
+    assert expand_template("D/{index}.pfm", "x", index=12) == "D/12.pfm"
+    with pytest.raises(OptionError, match="not an integer format"):
+        expand_template("{index:q}", "x", index=1)
+    with pytest.raises(OptionError, match="numbers the frames of a stream"):
+        expand_template("{index}", "x")
+
+
+def test_a_raw_stream_encodes_to_the_frames_one_file_at_a_time_gives(frames):
+    singles = []
+    for index in range(3):
+        out = frames / f"single{index}.sbs"
+        encode_file(frames / f"r{index}.png", out, pattern=GRID, overwrite=True)
+        singles.append(out.read_bytes())
+    stream = frames / "stream.sbs"
+    items = list(encode_stream([str(frames / "rights.raw")], str(stream), pattern=GRID, raw_size=(96, 64),
+                               pix_fmt="rgb24", overwrite=True))
+    assert [item["frame"] for item in items] == [0, 1, 2]
+    assert list(sample_frames(stream)) == singles
+    per_frame = list(encode_stream([str(frames / "rights.raw")], str(frames / "S" / "{index:02d}.sbs"),
+                                   pattern=GRID, raw_size=(96, 64), pix_fmt="rgb24", overwrite=True))
+    assert [(frames / "S" / f"{i:02d}.sbs").read_bytes() for i in range(3)] == singles
+    assert per_frame[2]["output"] == str(frames / "S" / "02.sbs")
+    images = list(encode_stream([str(frames / f"r{i}.png") for i in range(3)], str(frames / "images.sbs"),
+                                pattern=GRID, overwrite=True))
+    assert len(images) == 3 and (frames / "images.sbs").read_bytes() == stream.read_bytes()
+
+
+def test_a_failing_stream_leaves_no_half_written_stream_file(frames):
+    cut = frames / "cut.raw"
+    cut.write_bytes((frames / "rights.raw").read_bytes()[:-10])
+    with pytest.raises(Exception, match="frame 2 is cut short"):
+        list(encode_stream([str(cut)], str(frames / "cut.sbs"), pattern=GRID, raw_size=(96, 64),
+                           pix_fmt="rgb24"))
+    assert not (frames / "cut.sbs").exists() and not list(frames.glob(".cut.sbs*"))
+
+
+def test_decode_stream_equals_decoding_each_frame_alone(frames):
+    stream = frames / "dstream.sbs"
+    list(encode_stream([str(frames / "rights.raw")], str(stream), pattern=GRID, raw_size=(96, 64),
+                       pix_fmt="rgb24", overwrite=True))
+    summaries = list(decode_stream(str(frames / "L" / "{index}.png"), str(stream), max_disp=16,
+                                   disparity=str(frames / "D" / "{index}.pfm"),
+                                   right=str(frames / "R" / "{index}.png"), overwrite=True))
+    assert [s["frame"] for s in summaries] == [0, 1, 2]
+    assert summaries[1]["samples"].endswith("frame 1")
+    for index in range(3):
+        single = frames / f"single{index}.sbs"
+        encode_file(frames / f"r{index}.png", single, pattern=GRID, overwrite=True)
+        decode_file(DecodeJob(left=str(frames / "L" / f"{index}.png"), samples=str(single), max_disp=16,
+                              disparity=str(frames / f"alone{index}.pfm"), right=str(frames / f"alone{index}.png"),
+                              overwrite=True))
+        np.testing.assert_array_equal(read_disparity(frames / "D" / f"{index}.pfm"),
+                                      read_disparity(frames / f"alone{index}.pfm"))
+        assert (frames / "R" / f"{index}.png").read_bytes() == (frames / f"alone{index}.png").read_bytes()
+
+
+def test_stream_errors_name_the_frame_and_keep_the_frames_before(frames, tmp_path):
+    stream = frames / "estream.sbs"
+    list(encode_stream([str(frames / "rights.raw")], str(stream), pattern=GRID, raw_size=(96, 64),
+                       pix_fmt="rgb24", overwrite=True))
+    # A plain output name holds one frame: the second is refused, the first stays.
+    with pytest.raises(OptionError, match="second frame but --disparity names one file"):
+        list(decode_stream(str(frames / "L" / "0.png"), str(stream), max_disp=16,
+                           disparity=str(tmp_path / "one.pfm")))
+    assert (tmp_path / "one.pfm").exists()
+    # Fewer left images than frames.
+    lefts = tmp_path / "lefts"
+    lefts.mkdir()
+    for index in range(2):
+        (lefts / f"{index}.png").write_bytes((frames / "L" / f"{index}.png").read_bytes())
+    with pytest.raises(MismatchError, match="more frames than the 2 left images"):
+        list(decode_stream(str(lefts), str(stream), max_disp=16, disparity=str(tmp_path / "a" / "{index}.pfm")))
+    assert sorted(p.name for p in (tmp_path / "a").iterdir()) == ["0.pfm", "1.pfm"]
+    # A cut stream: the whole frames are decoded, then the error.
+    cut = tmp_path / "cut.sbs"
+    cut.write_bytes(stream.read_bytes()[:-7])
+    with pytest.raises(TruncatedFileError, match="frame 2 is truncated"):
+        list(decode_stream(str(frames / "L" / "{index}.png"), str(cut), max_disp=16,
+                           disparity=str(tmp_path / "b" / "{index}.pfm")))
+    assert sorted(p.name for p in (tmp_path / "b").iterdir()) == ["0.pfm", "1.pfm"]
