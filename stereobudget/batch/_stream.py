@@ -21,6 +21,7 @@ names the frame; the frames before it are complete, every file written whole.
 from __future__ import annotations
 
 import logging
+import os
 import time
 from typing import Iterable, Iterator
 
@@ -183,7 +184,8 @@ def decode_stream(left: str, samples: str, *, disparity: str | None = None, prev
         Outputs, as in :class:`~stereobudget.batch.DecodeJob`.  A template using ``{index}``
         (plus ``{stem}``/``{name}``/``{parent}`` of the frame's left image) writes one file
         per frame; ``-`` writes every frame to standard output, one image after another.
-        A plain file name holds one frame only: a second frame is an error.
+        A name that two frames would share (a plain name, or ``{stem}`` of one left image
+        for all) is an error at the second of them.
     max_disp, min_disp, method, overwrite, max_memory, disparity_format
         As in :class:`~stereobudget.batch.DecodeJob`; ``max_disp="auto"`` estimates the
         range of every frame on its own.
@@ -206,19 +208,22 @@ def decode_stream(left: str, samples: str, *, disparity: str | None = None, prev
     stream_name = display_name(samples)
     inputs = [samples] if samples != STDIO else []
     index = -1
+    written: dict[str, int] = {}        # output file -> the frame that wrote it
     for index, frame in enumerate(sample_frames(samples)):
         start = time.perf_counter()
         label = frame_label(stream_name, index) if index else stream_name
         left_path = lefts.path(index)
         outputs = {kind: _frame_output(value, source=left_path, index=index, option=f"--{kind}")
                    for kind, value in templates.items()}
-        if index == 1:
-            plain = [f"--{kind}" for kind, value in templates.items()
-                     if value not in (None, STDIO) and not _one_file_per_frame(value, f"--{kind}")]
-            if plain:
-                raise OptionError(f"the stream has a second frame but {', '.join(plain)} names one file; "
-                                  "put {index} in the name (e.g. 'out/{index:05d}.pfm') or write to '-'",
-                                  path=stream_name)
+        for kind, path in outputs.items():
+            if path in (None, STDIO):
+                continue
+            key = os.path.normpath(os.path.abspath(path))
+            if key in written:
+                raise OptionError(f"frame {index} would write --{kind} {path} again (frame {written[key]} "
+                                  "wrote it); put {index} in the name (e.g. 'out/{index:05d}.pfm') or write "
+                                  "to '-'", path=stream_name)
+            written[key] = index
         job = DecodeJob(left=left_path, samples=label, method=method, max_disp=max_disp, min_disp=min_disp,
                         overwrite=overwrite, max_memory=max_memory, disparity_format=disparity_format,
                         **outputs)

@@ -93,7 +93,7 @@ def _is_stream(inputs, left_dir, samples_dir, manifest, templates: dict) -> bool
     OptionError
         A file of several frames whose outputs are plain file names, or LEFT on ``-``.
     """
-    from stereobudget.batch import uses_field
+    from stereobudget.batch import has_template, uses_field
     from stereobudget.io import holds_several_frames
 
     if len(inputs) != 2 or left_dir is not None or samples_dir is not None or manifest is not None:
@@ -110,7 +110,7 @@ def _is_stream(inputs, left_dir, samples_dir, manifest, templates: dict) -> bool
                           "images, or a template such as 'L/{index:05d}.png'")
     if several:
         plain = [f"--{name}" for name, value in templates.items()
-                 if value != "-" and not uses_field(value, "index", f"--{name}")]
+                 if value != "-" and not has_template(value, f"--{name}")]
         if plain:
             raise OptionError(f"{samples} holds several .sbs frames (a stream) but {', '.join(plain)} names "
                               "one file; put {index} in the name (e.g. 'D/{index:05d}.pfm') or write to '-'")

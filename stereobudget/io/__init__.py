@@ -9,7 +9,7 @@ __getattr__, __dir__, __all__ = attach(__name__, {
     '_rawgrid': ['RAW_FORMATS', 'raw_frame_layout', 'check_raw_frame', 'grid_payload'],
     '_stream': ['sample_frames', 'raw_frames', 'holds_several_frames'],
     '_images': ['sniff_image_size', 'read_image', 'parse_raw_size', 'read_raw', 'encode_image_bytes', 'write_image'],
-    '_disparity': ['logger', 'DISPARITY_EXTENSIONS', 'STREAM_FORMATS', 'PNG_SCALE', 'PNG_MAX_DISPARITY', 'write_disparity', 'read_disparity', 'disparity_preview', 'SCALE_BAR_MIN_WIDTH', 'with_scale_bar', 'write_preview'],
+    '_disparity': ['logger', 'DISPARITY_EXTENSIONS', 'STREAM_FORMATS', 'PNG_SCALE', 'PNG_MAX_DISPARITY', 'write_disparity', 'read_disparity', 'pfm_frames', 'disparity_preview', 'SCALE_BAR_MIN_WIDTH', 'with_scale_bar', 'write_preview'],
     '_atomic': ['STDIO', 'redeliver_swallowed_interrupts', 'atomic_write', 'interrupts_deferred', 'write_output_bytes', 'read_input_bytes', 'display_name', 'check_output_path'],
     '_limits': ['MAX_DIMENSION', 'MAX_PIXELS', 'MAX_INPUT_BYTES', 'dimension_problem', 'DEFAULT_MEMORY_FRACTION', 'MEMORY_LIMIT_ENV', 'LAYER_QUANTUM', 'volume_layers', 'estimate_decode_memory', 'available_memory', 'parse_size', 'format_size', 'default_memory_limit', 'check_decode_memory'],
 })

@@ -109,6 +109,37 @@ def _decode_pfm(raw: bytes, path: str) -> np.ndarray:
     return _as_disparity_array(d)
 
 
+def pfm_frames(data: bytes, *, name: str = "<bytes>"):
+    """The disparity maps of a PFM stream (``sb-decode ... --disparity -`` on a stream of frames).
+
+    A PFM stream is PFM images one after another, each ``Pf`` + width + height + scale
+    and width x height float32 values (bottom row first), as :func:`write_disparity`
+    writes them.
+
+    Yields
+    ------
+    ndarray, float32, (H, W)
+        One map per frame, NaN where the disparity is unknown.
+
+    Raises
+    ------
+    ImageReadError
+        Bytes that are no PFM image, or a last image cut short.
+    """
+    view = memoryview(data)
+    position, index = 0, 0
+    while position < len(view):
+        head = bytes(view[position:position + 256])
+        match = _PFM_HEADER.match(head)
+        label = f"{name} frame {index}" if index else name
+        if match is None:
+            _decode_pfm(head, label)            # raises with the reason
+        width, height = int(match.group(2)), int(match.group(3))
+        end = position + match.end() + width * height * 4
+        yield _decode_pfm(bytes(view[position:end]), label)
+        position, index = end, index + 1
+
+
 # --------------------------------------------------------------------------- TIFF
 
 def _float_predictor_available() -> bool:

@@ -34,3 +34,15 @@ def test_bash_completion_of_options_and_choices():
     methods = run(["stereobudget.cli.decode"], module=True,
                   env={"_SB_DECODE_COMPLETE": "bash_complete", "COMP_WORDS": "sb-decode --method ", "COMP_CWORD": "2"})
     assert [line.split(",")[1] for line in methods.stdout.splitlines()] == ["hybrid", "sparse", "downsample", "full"]
+
+
+def test_after_a_default_decode_the_kernels_count_as_cached():
+    # The notice must not reappear once the default decoder has run (it probes the
+    # modules that decoder compiles, not only the paper's tree route).
+    decode = ("import numpy as np; from stereobudget import decode; from stereobudget.io import encode_image;"
+              "from stereobudget.sampling import SamplingPattern; from stereobudget.scenes import make_scene;"
+              "s = make_scene('slanted', height=48, width=64, max_disp=8);"
+              "decode(s.left, encode_image(s.right, pattern=SamplingPattern('grid', 5, 5)), max_disp=8)")
+    assert run(decode).returncode == 0
+    probe = run("from stereobudget._kernels._first_run import kernels_cached; print(kernels_cached())")
+    assert probe.returncode == 0 and probe.stdout.split() == ["True"], probe.stderr
