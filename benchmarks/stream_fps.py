@@ -48,18 +48,19 @@ def make_camera(folder: Path, frames: int, width: int, height: int) -> bytes:
 
 def stream_run(folder: Path, raw: bytes, size: str, decode: bool) -> float:
     start = time.perf_counter()
-    encoder = subprocess.Popen([*tool("encode"), "-", "--raw", size, "--pix-fmt", "rgb24", "-o", "-"],
-                               stdin=subprocess.PIPE, stdout=subprocess.PIPE, cwd=folder)
+    # The camera's frames come from a file: a pipe written from here could fill while the
+    # decoder's own output waits to be read, and both would wait for ever.
+    with open(folder / "camera.raw", "rb") as frames:
+        encoder = subprocess.Popen([*tool("encode"), "-", "--raw", size, "--pix-fmt", "rgb24", "-o", "-"],
+                                   stdin=frames, stdout=subprocess.PIPE, cwd=folder)
     if decode:
         decoder = subprocess.Popen([*tool("decode"), "L/{index}.png", "-", "--max-disp", "48", "--disparity",
                                     "-", "-q"], stdin=encoder.stdout, stdout=subprocess.PIPE, cwd=folder)
         encoder.stdout.close()
-        encoder.stdin.write(raw)
-        encoder.stdin.close()
         out, _ = decoder.communicate()
         assert decoder.returncode == 0 and out.startswith(b"Pf")
     else:
-        out, _ = encoder.communicate(raw)
+        out, _ = encoder.communicate()
     assert encoder.wait() == 0
     return time.perf_counter() - start
 
@@ -85,6 +86,7 @@ def main(argv=None):
     with tempfile.TemporaryDirectory() as name:
         folder = Path(name)
         raw = make_camera(folder, args.frames, width, height)
+        (folder / "camera.raw").write_bytes(raw)
         stream_run(folder, raw, args.size, True)          # compile / load the kernels once
         times = {key: [] for key in ("stream", "per_frame", "encode_stream", "encode_per_frame")}
         for _ in range(args.repeats):

@@ -36,16 +36,17 @@ def camera(tmp_path_factory):
 
 def test_camera_pipe_to_disparity_stream_equals_one_process_per_frame(camera):
     raw = "x".join(map(str, SIZE))
-    encoder = subprocess.Popen([*command("encode"), "-", "--raw", raw, "--pix-fmt", "rgb24", "-o", "-"],
-                               stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=subprocess.PIPE, cwd=camera)
+    # The camera is a file on the encoder's stdin (writing a pipe from here while the
+    # decoder's output waits to be read could block both); encoder -> decoder is a pipe.
+    with open(camera / "rights.raw", "rb") as frames:
+        encoder = subprocess.Popen([*command("encode"), "-", "--raw", raw, "--pix-fmt", "rgb24", "-o", "-"],
+                                   stdin=frames, stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, cwd=camera)
     decoder = subprocess.Popen([*command("decode"), "L/{index}.png", "-", "--max-disp", "16", "--disparity", "-",
                                 "-v"], stdin=encoder.stdout, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
                                cwd=camera)
     encoder.stdout.close()          # the decoder holds the pipe's only reader
-    encoder.stdin.write((camera / "rights.raw").read_bytes())
-    encoder.stdin.close()
     out, err = decoder.communicate(timeout=900)
-    assert encoder.wait(timeout=60) == 0, encoder.stderr.read()
+    assert encoder.wait(timeout=60) == 0
     assert decoder.returncode == 0, err
     maps = list(pfm_frames(out, name="<stdout>"))
     assert len(maps) == 3 and b"3 frame(s) in" in err
