@@ -129,7 +129,7 @@ def smooth_pair(height: int, width: int, disparity: int, seed: int = 0):
 def machine_info() -> dict:
     import cv2
     import numba
-    from stereobudget.decoding._decoders import winner_take_all
+    from stereobudget.aggregate import winner_take_all
     winner_take_all(np.zeros((2, 2, 2), np.float32), 0)        # a parallel kernel: starts the layer
     model = "unknown"
     try:

@@ -4,7 +4,8 @@ import numpy as np
 import pytest
 
 from stereobudget.io import encode_image
-from stereobudget.decoding._decoders import _band_samples, auto_tile_rows, decode, decode_tiled
+from stereobudget.decoding import Decoder, auto_tile_rows, decode, decode_tiled
+from stereobudget.decoding._tiling import _band_samples
 from stereobudget.errors import OptionError
 from stereobudget.io import estimate_decode_memory
 from stereobudget.sampling import SamplingPattern
@@ -80,11 +81,13 @@ def test_bands_hold_no_large_spares_beside_their_volumes(scene, monkeypatch):
         held.append(len(scratch._large))
 
     monkeypatch.setattr(scratch, "recycle", recording_recycle)
-    tiled = decode_tiled(scene.left, samples, max_disp=16, method="sparse", tile_rows=30, overlap=10).disparity
-    assert held and not any(held) and scratch._large == []
-    whole = decode(scene.left, samples, max_disp=16, method="sparse", tile_rows=0)   # untiled: kept
-    assert scratch._large
-    scratch.release()
+    with Decoder(keep_freed_memory=False) as decoder:       # kept between decodes, but not by bands
+        tiled = decoder.decode(scene.left, samples, max_disp=16, method="sparse", tile_rows=30,
+                               tile_overlap=10).disparity
+        assert held and not any(held) and scratch._large == []
+        whole = decoder.decode(scene.left, samples, max_disp=16, method="sparse", tile_rows=0)   # untiled: kept
+        assert scratch._large
+    assert scratch.spare_bytes() == 0
     np.testing.assert_array_equal(tiled, decode_tiled(scene.left, samples, max_disp=16, method="sparse",
                                                       tile_rows=30, overlap=10).disparity)
     assert whole.disparity.shape == tiled.shape
