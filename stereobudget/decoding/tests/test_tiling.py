@@ -91,3 +91,21 @@ def test_bands_hold_no_large_spares_beside_their_volumes(scene, monkeypatch):
     np.testing.assert_array_equal(tiled, decode_tiled(scene.left, samples, max_disp=16, method="sparse",
                                                       tile_rows=30, overlap=10).disparity)
     assert whole.disparity.shape == tiled.shape
+
+
+def test_the_memory_check_and_the_tiling_count_the_grid_the_params_ask_for(scene):
+    # Both take the DecoderParams the decoder runs with: a finer bilateral grid needs more
+    # memory, which the check before a whole-frame decode must see as the band search does.
+    from stereobudget.decoding import DecoderParams, decode_memory
+    from stereobudget.errors import MemoryLimitError
+    samples = encode_image(scene.right, pattern=SamplingPattern("grid", 4, 4))
+    fine = DecoderParams(grid_cells_per_sigma_s=2.0, grid_cells_per_sigma_r=2.0)
+    coarse = decode_memory(samples, num_disp=17, method="sparse")
+    needed = decode_memory(samples, num_disp=17, method="sparse", params=fine)
+    assert needed > coarse
+    assert needed == estimate_decode_memory(120, 160, 17, "sparse", stride_x=4, stride_y=4,
+                                            cells_per_sigma_s=2.0, cells_per_sigma_r=2.0)
+    decode(scene.left, samples, max_disp=16, method="sparse", max_memory=coarse, tile_rows=0)
+    with pytest.raises(MemoryLimitError):
+        decode(scene.left, samples, max_disp=16, method="sparse", params=fine, max_memory=needed - 1, tile_rows=0)
+    decode(scene.left, samples, max_disp=16, method="sparse", params=fine, max_memory=needed, tile_rows=0)
