@@ -71,6 +71,7 @@ def test_bands_hold_no_large_spares_beside_their_volumes(scene, monkeypatch):
     from stereobudget._kernels import _scratch as scratch
     scratch.release()
     monkeypatch.setattr(scratch, "LARGE_BYTES", 16 * 1024)   # the bands' cost volumes are "large"
+    monkeypatch.setattr(scratch._frames, "keepers", 0)         # a shared decoder of other tests: not ours
     monkeypatch.delenv("STEREOBUDGET_KEEP_FREED_MEMORY", raising=False)
     samples = encode_image(scene.right, pattern=SamplingPattern("grid", 4, 4))
     held = []
