@@ -129,7 +129,7 @@ def smooth_pair(height: int, width: int, disparity: int, seed: int = 0):
 def machine_info() -> dict:
     import cv2
     import numba
-    from stereobudget.decoding._decoders import winner_take_all
+    from stereobudget.aggregate import winner_take_all
     winner_take_all(np.zeros((2, 2, 2), np.float32), 0)        # a parallel kernel: starts the layer
     model = "unknown"
     try:
@@ -165,10 +165,13 @@ def teddy_benchmark(data_dir: Path, *, repeats: int, methods=("sparse", "hybrid"
     import cv2
     from stereobudget.io import _images as imageio
     from stereobudget.io import encode_image, load_samples, save_samples
-    from stereobudget.decoding import check_inputs, decode
+    from stereobudget.decoding import check_inputs, shared_decoder
     from stereobudget.sampling import SamplingPattern
     from stereobudget._kernels import _scratch as scratch
     from stereobudget.synthesis import recover_right
+
+    # A process decoding a series of frames, as sb-decode's batches: one open Decoder.
+    decode = shared_decoder().decode
 
     folder = data_dir / "teddy"
     max_disp = 60
@@ -446,8 +449,11 @@ sys.path.insert(0, os.path.join(os.getcwd(), "scripts"))
 from bench import smooth_pair
 from stereobudget.io import encode_image
 from stereobudget.sampling import SamplingPattern
-from stereobudget.decoding import decode, auto_tile_rows
+from stereobudget.decoding import auto_tile_rows, shared_decoder
 from stereobudget._kernels import _scratch as scratch
+# Decodes as sb-decode and the batch runners make them: on one open Decoder, each taking
+# over the previous one's volumes (scratch.release() below makes a decode's memory fresh).
+decode = shared_decoder().decode
 a = json.loads(sys.argv[1])
 def warm_pair(method, h, w, shift):
     l, r = smooth_pair(48, 96, 8)

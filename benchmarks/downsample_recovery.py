@@ -19,7 +19,8 @@ import numpy as np
 
 from stereobudget.io import encode_image
 from stereobudget.cost import to_float_image
-from stereobudget.decoding._decoders import decode, upsample_block_means
+from stereobudget.decoding import decode
+from stereobudget.fill import upsample_block_means
 from stereobudget.metrics import psnr
 from middlebury import SCENES, default_data_dir, load_scene
 from stereobudget.sampling import SamplingPattern

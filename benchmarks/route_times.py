@@ -6,17 +6,25 @@ pair between them, so a drift of the machine's speed falls on all alike; the tab
 the median over ``--repeats`` rounds and each route's ratio to SGBM's median.
 
     python benchmarks/route_times.py --repeats 7
+    python benchmarks/route_times.py --repeats 7 --routes hybrid --decoder plain   # each decode alone
+
+``--decoder shared`` (the default) decodes through one open
+:class:`stereobudget.decoding.Decoder`, as ``sb-decode`` and the batch runners do: each
+decode takes over the previous one's volumes, and glibc keeps freed blocks mapped.
+``--decoder plain`` calls :func:`stereobudget.decode`, which keeps nothing between calls
+and leaves the allocator alone.  The allocator setting lasts for the process, so the two
+are compared in separate runs (their ratios to SGBM carry the comparison).
 """
 
 from __future__ import annotations
 
 import argparse
+import contextlib
 import statistics
 import sys
 import time
 
 import cv2
-import numpy as np
 
 import stereobudget
 from middlebury import default_data_dir, load_scene
@@ -36,6 +44,9 @@ ROUTES = {
 def main(argv=None):
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--repeats", type=int, default=7)
+    parser.add_argument("--routes", default="", help="time only the routes whose name contains this text")
+    parser.add_argument("--decoder", choices=("shared", "plain"), default="shared",
+                        help="decode through one open Decoder (default) or by plain decode() calls")
     args = parser.parse_args(argv)
     scene = load_scene(default_data_dir(), "teddy")
     left, right = scene.left, scene.right
@@ -45,6 +56,8 @@ def main(argv=None):
     left_bgr, right_bgr = cv2.cvtColor(left, cv2.COLOR_RGB2BGR), cv2.cvtColor(right, cv2.COLOR_RGB2BGR)
     jobs = {}
     for name, (method, stride, changes) in ROUTES.items():
+        if args.routes not in name:
+            continue
         samples = encode_image(right, pattern=SamplingPattern("grid", stride, stride))
         jobs[name] = (samples, None if method == "full" else method, DecoderParams(**changes))
     times = {name: [] for name in ["SGBM 3WAY, full pair"] + list(jobs)}
@@ -54,17 +67,22 @@ def main(argv=None):
         matcher.compute(left_bgr, right_bgr)
         return time.perf_counter() - start
 
-    for name, (samples, method, params) in jobs.items():       # warm-up: compile, fill caches
-        stereobudget.decode(left, samples, max_disp=max_disp, method=method, params=params)
-    sgbm()
-    for _ in range(args.repeats):
-        for name, (samples, method, params) in jobs.items():
-            times["SGBM 3WAY, full pair"].append(sgbm())
-            start = time.perf_counter()
-            stereobudget.decode(left, samples, max_disp=max_disp, method=method, params=params)
-            times[name].append(time.perf_counter() - start)
+    with contextlib.ExitStack() as stack:
+        decode = stereobudget.decode
+        if args.decoder == "shared":
+            decode = stack.enter_context(stereobudget.Decoder()).decode
+        for name, (samples, method, params) in jobs.items():       # warm-up: compile, fill caches
+            decode(left, samples, max_disp=max_disp, method=method, params=params)
+        sgbm()
+        for _ in range(args.repeats):
+            for name, (samples, method, params) in jobs.items():
+                times["SGBM 3WAY, full pair"].append(sgbm())
+                start = time.perf_counter()
+                decode(left, samples, max_disp=max_disp, method=method, params=params)
+                times[name].append(time.perf_counter() - start)
     reference = statistics.median(times["SGBM 3WAY, full pair"])
-    print(f"Teddy 450x375, disparities 0-{max_disp}, median of {args.repeats} alternating rounds\n")
+    print(f"Teddy 450x375, disparities 0-{max_disp}, median of {args.repeats} alternating rounds, "
+          f"decoder {args.decoder}\n")
     print("| route | wall s | vs SGBM |\n|---|---:|---:|")
     for name, values in times.items():
         median = statistics.median(values)

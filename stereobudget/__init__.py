@@ -22,7 +22,8 @@ The library is grouped by topic; each subpackage re-exports its public names:
   routes aggregate on (:func:`stereobudget.aggregate.semiglobal_aggregate`).
 - :mod:`stereobudget.decoding` — the decoders of paper Fig. 2 (Sparse, Hybrid, Downsample,
   and the full pair), their parameters (Hybrid's weight: :func:`stereobudget.decoding.hybrid_weight`),
-  tiling and the memory estimate.  :func:`decode` is the entry point.
+  tiling and the memory estimate.  :func:`decode` is the entry point; :class:`Decoder` runs a
+  sequence of decodes on each other's memory (an opt-in: it holds memory between calls).
 - :mod:`stereobudget.synthesis` — the right image recovered from I1 and the disparity:
   **the warp for Î2** (:func:`stereobudget.synthesis.warp_left_to_right`), then the samples
   fill the holes (:func:`stereobudget.synthesis.recover_right`).
@@ -36,12 +37,12 @@ nor OpenCV; the decoder is loaded on first use of :func:`decode`.
 
 from ._version import __version__
 
-__all__ = ["__version__", "decode", "DecoderParams", "DecodeResult"]
+__all__ = ["__version__", "decode", "Decoder", "DecoderParams", "DecodeResult"]
 
 
 def __getattr__(name):
     # Lazy: importing the decoder compiles/loads numba kernels, which the camera side never needs.
-    if name in ("decode", "DecoderParams", "DecodeResult"):
-        from .decoding import _decoders as decoders
-        return getattr(decoders, name)
+    if name in ("decode", "Decoder", "DecoderParams", "DecodeResult"):
+        from . import decoding
+        return getattr(decoding, name)
     raise AttributeError(f"module 'stereobudget' has no attribute {name!r}")

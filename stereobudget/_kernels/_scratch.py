@@ -1,10 +1,15 @@
-"""Volume memory handed from one decode to the next in the same process.
+"""Volume memory handed from one decode to the next in the same process, on request.
 
 The first write to a fresh float32 volume page-faults: the kernel maps and zeroes every
 4 KiB page, ~8-10 ms for one of Teddy's 41 MB volumes on the benchmark machine, and a
-Hybrid decode writes two (plus ~20 MB of bilateral grids).  Decodes that follow each other in one process (a batch of
-frames, a dask worker, an embedding application) give their cost volumes back here when
-they are done, and the next decode of the same size takes them instead of new memory.
+Hybrid decode writes two (plus ~20 MB of bilateral grids).  Decodes that follow each other
+in one process (a batch of frames, a dask worker, an embedding application) can give their
+cost volumes back here when they are done, and the next decode of the same size takes
+them instead of new memory.  That holds memory between calls, so it is the caller's
+choice: volumes are kept between decodes only while one :func:`begin_keeping` is open
+(:class:`stereobudget.decoding.Decoder` opens one).  Otherwise a decode's volumes are
+reused only within it (:func:`in_use`) and all are dropped when it returns.
+
 Volumes of up to :data:`LARGE_BYTES` each are kept up to :data:`SPARE_BYTES` in all (the
 largest first when they do not all fit); larger ones (the cost volumes of frames from
 ~0.25 MP up, the bands of a tiled decode) are all kept, until a decode of another frame
@@ -12,11 +17,11 @@ size begins (:func:`frame`: they are dropped before its volumes are allocated, s
 volumes are never held beside new ones).  New memory costs
 the most there: 1-4 MP decodes took 9-35 % less CPU time on reused volumes
 (measured with benchmarks/bench.py --sections reuse).  :func:`spare_bytes` tells the memory check what
-is held; :func:`release` drops everything.  A single decode in a fresh process (one
-``sb-decode`` call) gains nothing and loses nothing.
+is held; :func:`release` drops everything.
 
-The smaller temporaries (trees, grids, keys: ~2000 pages a Hybrid decode of Teddy) are
-kept mapped by the C allocator instead (:func:`keep_freed_memory`).
+The smaller temporaries (trees, grids, keys: ~2000 pages a Hybrid decode of Teddy) can be
+kept mapped by the C allocator instead (:func:`keep_freed_memory`, a process-wide setting
+that only an opt-in calls).
 """
 
 from __future__ import annotations
@@ -52,6 +57,8 @@ class _Frames:
     running = 0     # decodes inside frame() now
     begun = 0       # frames begun: keys that differed from the one before
     holding_none = 0   # inside holding_no_large_spares(): large volumes given back are freed
+    in_use = 0      # calls inside in_use(): volumes given back are kept for them
+    keepers = 0     # begin_keeping() calls not yet ended: volumes are kept between calls
 
 
 _frames = _Frames()
@@ -75,9 +82,11 @@ def keep_freed_memory() -> bool:
     fresh pages that fault on first touch (~2000 faults and 5-15 ms per Hybrid decode of
     Teddy on the benchmark machine, benchmarks/bench.py).  This raises glibc's mmap
     threshold to its maximum and its trim threshold to :data:`SPARE_BYTES`, so blocks are
-    reused instead; the process keeps up to that much freed memory.  Called by
-    :func:`stereobudget.decode`; set ``STEREOBUDGET_KEEP_FREED_MEMORY=0`` to leave the
-    allocator alone.  Elsewhere than Linux it does nothing.
+    reused instead; the process keeps up to that much freed memory.  The setting lasts
+    for the rest of the process (glibc cannot restore its adaptive threshold), so only an
+    explicit opt-in calls it (:class:`stereobudget.decoding.Decoder`), never a plain
+    :func:`stereobudget.decode`; ``STEREOBUDGET_KEEP_FREED_MEMORY=0`` leaves the allocator
+    alone even then.  Elsewhere than Linux it does nothing.
 
     Returns
     -------
@@ -212,14 +221,17 @@ def zeroed_volume(shape) -> np.ndarray:
 
 
 def recycle(*volumes) -> None:
-    """Give volumes back for later decodes; the caller must not touch them afterwards.
+    """Give volumes back for later use; the caller must not touch them afterwards.
 
-    ``None`` entries are ignored.  Volumes of up to :data:`LARGE_BYTES` are kept within
-    :data:`SPARE_BYTES` in all (the largest first); larger ones are kept unless
-    ``STEREOBUDGET_KEEP_FREED_MEMORY=0``.
+    ``None`` entries are ignored.  Kept only inside :func:`in_use` or while a
+    :func:`begin_keeping` is open (otherwise dropped at once, as if freed): volumes of up to
+    :data:`LARGE_BYTES` within :data:`SPARE_BYTES` in all (the largest first), larger ones
+    unless ``STEREOBUDGET_KEEP_FREED_MEMORY=0``.
     """
     keep_large = _keeping_memory()
     with _lock:
+        if not (_frames.in_use or _frames.keepers):
+            return
         for volume in volumes:
             if (volume is None or volume.size == 0 or volume.dtype != np.float32
                     or not volume.flags.c_contiguous):
@@ -251,6 +263,56 @@ def _fitting_spares(spares: list) -> list:
     return [spare for i, spare in enumerate(spares) if i in kept]
 
 
+@contextlib.contextmanager
+def in_use():
+    """Volumes given back inside the block are kept for reuse inside it (one decode hands its
+    grids to its own later volumes); when the last such block ends and no
+    :func:`begin_keeping` is open, every spare volume is dropped, so a plain decode leaves
+    nothing held."""
+    with _lock:
+        _frames.in_use += 1
+    try:
+        yield
+    finally:
+        with _lock:
+            _frames.in_use -= 1
+            if not (_frames.in_use or _frames.keepers):
+                _drop_spares()
+
+
+def begin_keeping() -> None:
+    """Keep spare volumes between calls until the matching :func:`end_keeping`.
+
+    Calls nest (a count): the pools are process-wide, and while any caller keeps them every
+    decode of the process shares them.
+    """
+    with _lock:
+        _frames.keepers += 1
+
+
+def end_keeping() -> None:
+    """End one :func:`begin_keeping`; the last one gives back everything held (:func:`release`)."""
+    with _lock:
+        if _frames.keepers <= 0:
+            raise RuntimeError("end_keeping() without begin_keeping()")
+        _frames.keepers -= 1
+        last = not (_frames.keepers or _frames.in_use)
+    if last:
+        release()
+
+
+def keeping() -> bool:
+    """Whether spare volumes are kept between calls now (a :func:`begin_keeping` is open)."""
+    return _frames.keepers > 0
+
+
+def _drop_spares() -> None:
+    """Forget every spare volume and the last frame; call with the lock held."""
+    _spare.clear()
+    _large.clear()
+    _frames.key = None
+
+
 def spare_bytes() -> int:
     """Bytes held in spare volumes (a decode takes them or drops them before allocating)."""
     with _lock:
@@ -261,9 +323,7 @@ def release() -> None:
     """Drop every spare volume; with :func:`keep_freed_memory` in force, also hand the
     allocator's free memory back to the system."""
     with _lock:
-        _spare.clear()
-        _large.clear()
-        _frames.key = None
+        _drop_spares()
     if _malloc_tuned and _malloc_tuned[0]:
         try:
             ctypes.CDLL(None).malloc_trim(0)

@@ -711,8 +711,9 @@ def decode_arrays(left, samples, job: DecodeJob, *, left_name: str, samples_name
 
     method = job.method or DEFAULT_METHOD
     try:
-        result = decoders.decode(left, samples, max_disp=max_disp, min_disp=min_disp, method=method,
-                                 max_memory=job.max_memory)
+        # A process that decodes file after file: each decode takes over the last one's memory.
+        result = decoders.shared_decoder().decode(left, samples, max_disp=max_disp, min_disp=min_disp,
+                                                  method=method, max_memory=job.max_memory)
     except MemoryLimitError as exc:
         raise MemoryLimitError(exc.message, path=left_name) from None
     disparity = result.disparity

@@ -19,10 +19,25 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..aggregate._refine import fill_from_row, left_right_stable, median_filter_disparity
+from ..aggregate._refine import fill_from_row, full_pair_disparity, left_right_stable, median_filter_disparity
 from ..aggregate._semiglobal import semiglobal_aggregate, semiglobal_winners
 from ..cost._census import census_cost_volume
 from ..cost._cost import to_gray
+from ..fill._lowpass import _sample_values_f32
+
+
+def decode_full(left_f, guide, samples, tree_guide, *, min_disp, num_disp, params, timer):
+    """Left disparity of a full pair (a stride-1 sample set holds all of I2): census and
+    semi-global paths, or with ``params.full_cost="ad"`` the paper's Eq. (1) cost on Yang's tree.
+
+    Arguments as :func:`stereobudget.decoding._sparse.decode_sparse` (``guide`` unused: the
+    census route takes the gray images of both views itself).
+    """
+    with timer("prepare"):
+        right_f = _sample_values_f32(samples).reshape(samples.height, samples.width, samples.channels)
+    route = census_semiglobal_disparity if params.full_cost == "census" else full_pair_disparity
+    return route(left_f, right_f, tree_guide=tree_guide, min_disp=min_disp, num_disp=num_disp,
+                 params=params, timer=timer)
 
 
 def typical_margin(cost: np.ndarray, *, step: int = 4, floor: float = 1.0) -> float:

@@ -663,11 +663,42 @@ def _splat_cost(values_flat, band_flat, offsets, band_offsets, weights, layer, c
             band_flat[np.uint64(band_offsets[c] + layer)] += weights[c]
 
 
+class SplatTerms(NamedTuple):
+    """The scalars every splat kernel of the Sparse DSI takes: Eq. (2)'s cost terms
+    (:func:`stereobudget.cost.sparse_pair_cost`) and the grid's scales."""
+
+    truncation: np.float32
+    step_spacing: int
+    step_weight: np.float32
+    step_truncation: np.float32
+    census_weight: np.float32
+    inv_cs: float       # grid cells per pixel
+    inv_cr: float       # grid cells per gray level
+
+
+class RightSamples(NamedTuple):
+    """What the splat kernels read of the right samples, one row per sample."""
+
+    values: np.ndarray  # float32 (K, C), 8-bit units
+    steps: np.ndarray   # float32 (K,), difference to the next sample of the row (NaN: none)
+    codes: np.ndarray   # int64 (K,), lattice census code (-1: no census term)
+
+
+class LeftPixels(NamedTuple):
+    """What the splat kernels read of I1."""
+
+    image: np.ndarray   # float32 (H, W, C), 8-bit units
+    guide: np.ndarray   # float32 (H, W), its gray image
+    codes: np.ndarray   # uint8 (H, W), lattice census code
+
+
+def _splat_terms(*, truncation, step_spacing, step_weight, step_truncation, census_weight, geom) -> SplatTerms:
+    return SplatTerms(np.float32(truncation), int(step_spacing), np.float32(step_weight),
+                      np.float32(step_truncation), np.float32(census_weight), 1.0 / geom.cell_s, 1.0 / geom.cell_r)
+
+
 @njit(cache=True, parallel=True)
-def _splat_sparse_dsi_split(rows, cols, right_values, right_steps, left, guide, min_disp, truncation,
-                            step_spacing, step_weight, step_truncation, right_codes, left_codes, census_weight,
-                            inv_cs, inv_cr,
-                            grid_val, band_w, blocks):
+def _splat_sparse_dsi_split(rows, cols, samples, pixels, min_disp, terms, grid_val, band_w, blocks):
     """Splat Eq. (2): right sample k at (row, col) meets left pixel (row, col + d) in layer d.
 
     The weights of layer i are written only into x-cells [0, B) of ``band_w`` (B = its
@@ -677,8 +708,12 @@ def _splat_sparse_dsi_split(rows, cols, right_values, right_steps, left, guide, 
     The layers are cut into ``blocks`` contiguous blocks, one per thread: every block
     splats all samples into its own layers, so no two threads add into the same grid
     value and every value receives its samples in the same order as on one thread (the
-    result does not depend on the thread count).
+    result does not depend on the thread count).  ``samples``: :class:`RightSamples`,
+    ``pixels``: :class:`LeftPixels`, ``terms``: :class:`SplatTerms`.
     """
+    right_values, right_steps, right_codes = samples
+    left, guide, left_codes = pixels
+    truncation, step_spacing, step_weight, step_truncation, census_weight, inv_cs, inv_cr = terms
     gy_n, gx_n, gz_n, num_disp = grid_val.shape
     w = left.shape[1]
     blocks = max(1, min(blocks, num_disp))
@@ -709,9 +744,8 @@ def _splat_sparse_dsi_split(rows, cols, right_values, right_steps, left, guide, 
 
 
 @njit(cache=True, inline="always")
-def _splat_lattice_rows(r_lo, r_hi, cell_lo, cell_hi, sample_rows, offset_x, stride, n_cols, right_values,
-                        right_steps, left, guide, min_disp, truncation, step_spacing, step_weight, step_truncation,
-                        right_codes, left_codes, census_weight, inv_cs, inv_cr, grid_val, band_w, base_w, channel_of_residue):
+def _splat_lattice_rows(r_lo, r_hi, cell_lo, cell_hi, sample_rows, offset_x, stride, n_cols, samples, pixels,
+                        min_disp, terms, grid_val, band_w, base_w, channel_of_residue):
     """Splat sample rows ``[r_lo, r_hi)`` into the grids' cells whose y index lies in
     ``[cell_lo, cell_hi]``: every layer's cost into ``grid_val``, the band's weights into
     ``band_w`` and each left pixel's mask weight into its base channel of ``base_w``.
@@ -721,8 +755,12 @@ def _splat_lattice_rows(r_lo, r_hi, cell_lo, cell_hi, sample_rows, offset_x, str
     the same in all of them, so they are computed once per pixel, and the 8 cells it adds
     into stay in cache.  Base channel ``channel_of_residue[x % stride]`` holds the mask of
     the lattice columns congruent to x (-1: none).  Sample ``k = r * n_cols + j`` is at
-    column ``offset_x + j * stride``; ``min_disp >= 0``.
+    column ``offset_x + j * stride``; ``min_disp >= 0``.  ``samples``, ``pixels``, ``terms``
+    as :func:`_splat_sparse_dsi_split`.
     """
+    right_values, right_steps, right_codes = samples
+    left, guide, left_codes = pixels
+    truncation, step_spacing, step_weight, step_truncation, census_weight, inv_cs, inv_cr = terms
     gy_n, gx_n, gz_n, num_disp = grid_val.shape
     w = left.shape[1]
     band_n = band_w.shape[1]
@@ -791,9 +829,7 @@ def _splat_lattice_rows(r_lo, r_hi, cell_lo, cell_hi, sample_rows, offset_x, str
 
 
 @njit(cache=True, parallel=True)
-def _splat_lattice(sample_rows, offset_x, stride, n_cols, right_values, right_steps, left, guide, min_disp,
-                   truncation, step_spacing, step_weight, step_truncation, right_codes, left_codes, census_weight,
-                   inv_cs, inv_cr,
+def _splat_lattice(sample_rows, offset_x, stride, n_cols, samples, pixels, min_disp, terms,
                    grid_val, band_w, base_w, channel_of_residue, part_rows, shared_cells, zero_cells):
     """All sample rows of a full lattice into the value, band and base-weight grids, the
     rows cut into parts ``[part_rows[p], part_rows[p + 1])``, one per thread; part ``p``
@@ -826,16 +862,12 @@ def _splat_lattice(sample_rows, offset_x, stride, n_cols, right_values, right_st
         base_flat[lo * base_row:hi * base_row] = 0.0
         # Cells up to the last one the part above reaches (shared_cells[p]) wait for the second loop.
         _splat_lattice_rows(part_rows[p], part_rows[p + 1], shared_cells[p] + 1, gy_n, sample_rows, offset_x,
-                            stride, n_cols, right_values, right_steps, left, guide, min_disp, truncation,
-                            step_spacing, step_weight, step_truncation, right_codes, left_codes, census_weight,
-                            inv_cs, inv_cr, grid_val, band_w, base_w,
+                            stride, n_cols, samples, pixels, min_disp, terms, grid_val, band_w, base_w,
                             channel_of_residue)
     for p in prange(parts):
         if shared_cells[p] >= 0:
             _splat_lattice_rows(part_rows[p], part_rows[p + 1], 0, shared_cells[p], sample_rows, offset_x, stride,
-                                n_cols, right_values, right_steps, left, guide, min_disp, truncation, step_spacing,
-                                step_weight, step_truncation, right_codes, left_codes, census_weight,
-                                inv_cs, inv_cr, grid_val, band_w, base_w,
+                                n_cols, samples, pixels, min_disp, terms, grid_val, band_w, base_w,
                                 channel_of_residue)
 
 
@@ -895,7 +927,7 @@ def _lattice_sparse_dsi_grids(left, guide, rows, cols, right_values, right_steps
                               left_codes, census_weight):
     h, w = guide.shape
     gy, gx, gz = geom.shape
-    inv_cs, inv_cr = 1.0 / geom.cell_s, 1.0 / geom.cell_r
+    inv_cs = 1.0 / geom.cell_s
     reach = _gaussian_kernel(geom.blur_s).shape[0] // 2      # x-blur radius in cells
     offset_x = int(cols[0]) if len(cols) else 0
     layers = np.arange(num_disp, dtype=np.int64)
@@ -928,11 +960,13 @@ def _lattice_sparse_dsi_grids(left, guide, rows, cols, right_values, right_steps
     channel_of_residue = np.full(stride, -1, np.int64)
     channel_of_residue[(offset_x + min_disp + np.arange(base_w.shape[3], dtype=np.int64)) % stride] = \
         np.arange(base_w.shape[3])
-    _splat_lattice(sample_rows, offset_x, int(stride), n_cols, np.ascontiguousarray(right_values, np.float32),
-                   np.ascontiguousarray(right_steps, np.float32), left, guide, int(min_disp), np.float32(truncation),
-                   int(step_spacing), np.float32(step_weight), np.float32(step_truncation), right_codes, left_codes,
-                   np.float32(census_weight), inv_cs, inv_cr, grid_val,
-                   band_w, base_w, channel_of_residue, *_lattice_parts(sample_rows, inv_cs, gy, get_num_threads()))
+    samples = RightSamples(np.ascontiguousarray(right_values, np.float32),
+                           np.ascontiguousarray(right_steps, np.float32), right_codes)
+    terms = _splat_terms(truncation=truncation, step_spacing=step_spacing, step_weight=step_weight,
+                         step_truncation=step_truncation, census_weight=census_weight, geom=geom)
+    _splat_lattice(sample_rows, offset_x, int(stride), n_cols, samples, LeftPixels(left, guide, left_codes),
+                   int(min_disp), terms, grid_val, band_w, base_w, channel_of_residue,
+                   *_lattice_parts(sample_rows, inv_cs, gy, get_num_threads()))
     return _slice_grids(_blur_grid(grid_val, geom), _blur_base_grid(base_w, geom), _blur_grid(band_w, geom), geom,
                         density=len(rows) / float(h * w), missing_value=truncation,
                         first_band_layer=first_band_layer, first_missing_layer=first_missing_layer)
@@ -1096,12 +1130,12 @@ def sparse_dsi_grids(left: np.ndarray, guide: np.ndarray, rows: np.ndarray, cols
                                          right_codes=right_codes, left_codes=left_codes, census_weight=census_weight)
     grid_val = zeroed_volume(geom.shape + (num_disp,))
     grid_w = zeroed_volume(geom.shape + (num_disp,))
-    _splat_sparse_dsi_split(np.asarray(rows, np.int64), np.asarray(cols, np.int64),
-                            np.ascontiguousarray(right_values, np.float32),
-                            np.ascontiguousarray(right_steps, np.float32), left, guide, int(min_disp),
-                            np.float32(truncation), int(step_spacing), np.float32(step_weight),
-                            np.float32(step_truncation), right_codes, left_codes, np.float32(census_weight),
-                            1.0 / geom.cell_s, 1.0 / geom.cell_r, grid_val, grid_w,
+    samples = RightSamples(np.ascontiguousarray(right_values, np.float32),
+                           np.ascontiguousarray(right_steps, np.float32), right_codes)
+    terms = _splat_terms(truncation=truncation, step_spacing=step_spacing, step_weight=step_weight,
+                         step_truncation=step_truncation, census_weight=census_weight, geom=geom)
+    _splat_sparse_dsi_split(np.asarray(rows, np.int64), np.asarray(cols, np.int64), samples,
+                            LeftPixels(left, guide, left_codes), int(min_disp), terms, grid_val, grid_w,
                             get_num_threads())
     return _slice_grids(_blur_grid(grid_val, geom), _blur_base_grid(grid_w, geom), None, geom,
                         density=len(rows) / float(h * w), missing_value=truncation)

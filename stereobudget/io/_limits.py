@@ -289,12 +289,13 @@ def default_memory_limit() -> int | None:
 
 def check_decode_memory(height: int, width: int, num_disp: int, method: str, *,
                         max_memory: int | None = None, stride_x: int = 5, stride_y: int = 5,
-                        sigma_s_per_stride: float = 2.0, sigma_r: float = 15.0) -> int:
+                        sigma_s_per_stride: float = 2.0, sigma_r: float = 15.0,
+                        cells_per_sigma_s: float = 1.0, cells_per_sigma_r: float = 1.0) -> int:
     """Raise :class:`~stereobudget.errors.MemoryLimitError` when a decode would exceed the limit.
 
     Parameters
     ----------
-    height, width, num_disp, method, stride_x, stride_y, sigma_s_per_stride, sigma_r
+    height, width, num_disp, method, stride_x, stride_y, sigma_s_per_stride, sigma_r, cells_per_sigma_s, cells_per_sigma_r
         As :func:`estimate_decode_memory`.
     max_memory : int, optional
         Limit in bytes; default :func:`default_memory_limit`.
@@ -308,7 +309,8 @@ def check_decode_memory(height: int, width: int, num_disp: int, method: str, *,
 
     needed = estimate_decode_memory(height, width, num_disp, method, stride_x=stride_x,
                                     stride_y=stride_y, sigma_s_per_stride=sigma_s_per_stride,
-                                    sigma_r=sigma_r)
+                                    sigma_r=sigma_r, cells_per_sigma_s=cells_per_sigma_s,
+                                    cells_per_sigma_r=cells_per_sigma_r)
     if max_memory is None:
         try:
             limit = default_memory_limit()

@@ -86,8 +86,8 @@ def test_decode_pfm_preview_and_json_summary(pair, tmp_path):
     assert (summary["width"], summary["height"], summary["channels"]) == (left.shape[1], left.shape[0], 3)
     assert summary["epsilon"] == pytest.approx((-(-left.shape[0] // 4)) * (-(-left.shape[1] // 4))
                                                / (left.shape[0] * left.shape[1]))
-    from stereobudget.decoding import _decoders as decoders
-    assert summary["method"] == getattr(decoders, "DEFAULT_METHOD", "sparse")
+    from stereobudget.decoding import DEFAULT_METHOD
+    assert summary["method"] == DEFAULT_METHOD
     assert summary["max_disp"] == MAX_DISP and summary["min_disp"] == 0
     assert summary["disparity_range"] == pytest.approx([float(np.nanmin(d)), float(np.nanmax(d))])
     for stage in ("read", "validate", "write", "total"):

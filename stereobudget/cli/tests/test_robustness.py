@@ -543,8 +543,10 @@ def test_decode_refuses_before_allocating(monkeypatch):
         raise AssertionError("nothing may be allocated after the memory check failed")
     from stereobudget.aggregate import _tree as tree
     from stereobudget.aggregate import _pair_volumes as volumes
-    for module, name in ((tree, "build_tree"), (volumes, "pair_cost_rows"), (decoders, "filled_sparse_dsi"),
-                         (decoders, "sparse_dsi_grids")):
+    from stereobudget.decoding import _hybrid as hybrid
+    from stereobudget.decoding import _sparse as sparse
+    for module, name in ((tree, "build_tree"), (volumes, "pair_cost_rows"), (sparse, "filled_sparse_dsi"),
+                         (hybrid, "sparse_dsi_grids"), (hybrid, "pair_cost_rows")):
         monkeypatch.setattr(module, name, no_volumes)
     with pytest.raises(MemoryLimitError) as info:
         decoders.decode(left, samples, max_disp=5, max_memory=need - 1)

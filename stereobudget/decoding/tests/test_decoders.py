@@ -6,7 +6,8 @@ import pytest
 
 import stereobudget
 from stereobudget.io import encode_image
-from stereobudget.decoding._decoders import DecoderParams, winner_take_all
+from stereobudget.aggregate import winner_take_all
+from stereobudget.decoding import DecoderParams
 from stereobudget.errors import MismatchError, OptionError
 from stereobudget.sampling import SamplingPattern
 from stereobudget.scenes import make_scene

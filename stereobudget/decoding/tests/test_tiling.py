@@ -4,7 +4,8 @@ import numpy as np
 import pytest
 
 from stereobudget.io import encode_image
-from stereobudget.decoding._decoders import _band_samples, auto_tile_rows, decode, decode_tiled
+from stereobudget.decoding import Decoder, auto_tile_rows, decode, decode_tiled
+from stereobudget.decoding._tiling import _band_samples
 from stereobudget.errors import OptionError
 from stereobudget.io import estimate_decode_memory
 from stereobudget.sampling import SamplingPattern
@@ -70,6 +71,7 @@ def test_bands_hold_no_large_spares_beside_their_volumes(scene, monkeypatch):
     from stereobudget._kernels import _scratch as scratch
     scratch.release()
     monkeypatch.setattr(scratch, "LARGE_BYTES", 16 * 1024)   # the bands' cost volumes are "large"
+    monkeypatch.setattr(scratch._frames, "keepers", 0)         # a shared decoder of other tests: not ours
     monkeypatch.delenv("STEREOBUDGET_KEEP_FREED_MEMORY", raising=False)
     samples = encode_image(scene.right, pattern=SamplingPattern("grid", 4, 4))
     held = []
@@ -80,11 +82,31 @@ def test_bands_hold_no_large_spares_beside_their_volumes(scene, monkeypatch):
         held.append(len(scratch._large))
 
     monkeypatch.setattr(scratch, "recycle", recording_recycle)
-    tiled = decode_tiled(scene.left, samples, max_disp=16, method="sparse", tile_rows=30, overlap=10).disparity
-    assert held and not any(held) and scratch._large == []
-    whole = decode(scene.left, samples, max_disp=16, method="sparse", tile_rows=0)   # untiled: kept
-    assert scratch._large
-    scratch.release()
+    with Decoder(keep_freed_memory=False) as decoder:       # kept between decodes, but not by bands
+        tiled = decoder.decode(scene.left, samples, max_disp=16, method="sparse", tile_rows=30,
+                               tile_overlap=10).disparity
+        assert held and not any(held) and scratch._large == []
+        whole = decoder.decode(scene.left, samples, max_disp=16, method="sparse", tile_rows=0)   # untiled: kept
+        assert scratch._large
+    assert scratch.spare_bytes() == 0
     np.testing.assert_array_equal(tiled, decode_tiled(scene.left, samples, max_disp=16, method="sparse",
                                                       tile_rows=30, overlap=10).disparity)
     assert whole.disparity.shape == tiled.shape
+
+
+def test_the_memory_check_and_the_tiling_count_the_grid_the_params_ask_for(scene):
+    # Both take the DecoderParams the decoder runs with: a finer bilateral grid needs more
+    # memory, which the check before a whole-frame decode must see as the band search does.
+    from stereobudget.decoding import DecoderParams, decode_memory
+    from stereobudget.errors import MemoryLimitError
+    samples = encode_image(scene.right, pattern=SamplingPattern("grid", 4, 4))
+    fine = DecoderParams(grid_cells_per_sigma_s=2.0, grid_cells_per_sigma_r=2.0)
+    coarse = decode_memory(samples, num_disp=17, method="sparse")
+    needed = decode_memory(samples, num_disp=17, method="sparse", params=fine)
+    assert needed > coarse
+    assert needed == estimate_decode_memory(120, 160, 17, "sparse", stride_x=4, stride_y=4,
+                                            cells_per_sigma_s=2.0, cells_per_sigma_r=2.0)
+    decode(scene.left, samples, max_disp=16, method="sparse", max_memory=coarse, tile_rows=0)
+    with pytest.raises(MemoryLimitError):
+        decode(scene.left, samples, max_disp=16, method="sparse", params=fine, max_memory=needed - 1, tile_rows=0)
+    decode(scene.left, samples, max_disp=16, method="sparse", params=fine, max_memory=needed, tile_rows=0)

@@ -246,7 +246,10 @@ def test_base_weights_end_in_zero_cells_and_are_reused_by_the_next_fill(scene):
     assert (grids.base_weights.shape[0] - cells) * channels >= bilateral.PERIOD_READ_PAST
     assert np.all(grids.base_weights[cells:] == 0)
     address = grids.base_weights.ctypes.data
-    bilateral.release_grids(grids)
-    again = bilateral.sparse_dsi_grids(left, guide, rows, cols, values, **kwargs)
-    assert again.base_weights.ctypes.data == address
-    bilateral.release_grids(again)
+    from stereobudget._kernels import _scratch
+    with _scratch.in_use():                                   # as within a decode
+        bilateral.release_grids(grids)
+        again = bilateral.sparse_dsi_grids(left, guide, rows, cols, values, **kwargs)
+        assert again.base_weights.ctypes.data == address
+        bilateral.release_grids(again)
+    assert _scratch.spare_bytes() == 0 or _scratch.keeping()

@@ -1,0 +1,269 @@
+"""What every decoder shares: :class:`DecoderParams`, :class:`DecodeResult`, the input
+checks, the noise adaptation of the cost truncations and the choice of the method a
+sample set implies."""
+
+from __future__ import annotations
+
+import time
+from dataclasses import asdict, dataclass, field, replace
+
+import numpy as np
+
+from ..cost._cost import DEFAULT_TRUNCATION, noise_level, noise_level_of_gray, to_float_image
+from ..errors import MismatchError, OptionError
+from ..io._samples import SampleSet
+from ._methods import DEFAULT_METHOD, METHODS
+
+
+@dataclass(frozen=True)
+class DecoderParams:
+    """Parameters of the decoders (defaults: the paper's values, see docs/results.md).
+
+    Attributes
+    ----------
+    sigma_r : float
+        Range sigma of the joint bilateral fill, 8-bit units (paper: 20; 15 measured
+        slightly better on Middlebury and neutral on the synthetic scenes).
+    sigma_s_per_stride : float
+        Spatial sigma of the fill in units of the sampling stride (paper: 3; 2 is better
+        on every Middlebury scene group and on 9 of 10 synthetic scenes: a narrower
+        window mixes fewer costs from occluded pixels into their visible neighbours).
+    truncation : float
+        Truncation of the sparse (Eq. 2) absolute colour difference, 8-bit units.  With
+        only samples there is no gradient term, so the colour term carries the match and
+        a wider truncation than the full-pair cost keeps it discriminative.
+    full_truncation, grad_truncation : float
+        Truncations of the colour and x-gradient terms of a dense DSI (full pair,
+        Downsample, Hybrid's interpolated DSI): Yang / Rhemann et al.'s 7 and 2.
+    tree_sigma : float
+        Similarity falloff of the MST aggregation (Yang: 0.1 * 255).
+    tree_median : int
+        Median filter applied to I1 before building the tree (0 = off).
+    grad_weight : float
+        Weight of the gradient term of a dense DSI (Yang / Rhemann et al.: 0.89, colour
+        gets 0.11).
+    median_size : int
+        Median filter on the final disparity (0 = off).
+    lowpass_per_stride : float
+        Hybrid: sigma of the Gaussian that interpolates the samples and low-passes I1, in
+        units of the stride.  0.5 puts the Gaussian's response at the samples' Nyquist
+        frequency 1/(2 s) at exp(-pi^2 / 8) = 29 % (0.7 -> 9 % suppresses aliases better
+        but blurs away the detail the dense DSI is for; docs/results.md has the sweep).
+    step_weight, step_truncation : float
+        Sparse DSI: weight and truncation (gray levels) of the difference between row
+        neighbours of the sample grid compared with I1's difference over the same spacing
+        (:func:`stereobudget.cost.sparse_pair_cost`); the sweep in docs/results.md.
+    sparse_census_weight : float
+        Weight of the lattice census in the Sparse DSI (:func:`stereobudget.cost.sparse_pair_cost`):
+        each sample's order against its 8 grid neighbours, compared with I1's at the same
+        spacing, survives the exposure differences of real camera pairs.
+    noise_reference : float or None
+        Every cost truncation is at least this many times the difference that the left
+        image's noise alone produces (see :func:`adapt_to_noise`).  None: off.
+    hybrid_sparse_weight : float or None
+        Hybrid: weight of the Sparse DSI in the mean (the interpolated DSI gets 1 - w).
+        ``None``: chosen from the stride by :func:`stereobudget.decoding.hybrid_weight`.
+    grid_cells_per_sigma_s, grid_cells_per_sigma_r : float
+        Resolution of the bilateral grid of the Sparse fill: grid cells per spatial and
+        per range sigma (:func:`stereobudget.fill.grid_geometry`).  One cell per
+        sigma is Paris & Durand's sampling rate; the grid blur is narrowed so the
+        effective kernel keeps its sigma, and the sweep recorded in the commit history
+        (``benchmarks/sweep.py``) finds every scene within 0.2 pp of 2 cells per
+        sigma at strides 3, 5 and 8, for 1/8 of the grid cells.
+    hybrid_aggregation : {"semiglobal_census", "semiglobal", "tree"}
+        How Hybrid matches and aggregates.  ``"semiglobal_census"``: the Sparse fill
+        (weight ``hybrid_sparse_weight``) mixed with the census, at the grid's spacing, of
+        the low-passed I1 and the low-passed interpolation of the samples, summed along
+        the semi-global paths (P2 = ``hybrid_sgm_p2``), checked left against right on the
+        diagonal, rejected pixels filled from their row.  On the 23 real pairs
+        (``benchmarks/evaluate_real.py``) 26.6 % bad pixels at stride 5 and 19.9 % at
+        stride 3, against 31.5 % and 28.6 % for ``"tree"`` (the paper's route: the Sparse
+        fill mixed with absolute differences of the low-passed pair, Yang's tree, check
+        and refinement), which stays better on the four paper scenes (6.6 % against 8.0 %
+        at stride 5).  ``"semiglobal"``: the paper's mixed cost on the semi-global paths
+        (28.3 % / 8.4 %).
+    full_cost : {"census", "ad"}
+        Cost and aggregation of the full pair.  ``"census"``: 5x5 census, semi-global
+        aggregation (:mod:`stereobudget.decoding._full`); on the 23 real pairs of the
+        development set 16.8 % bad pixels against OpenCV SGBM's 20.8 % and the tree on
+        absolute differences' 26 % (``benchmarks/evaluate_real.py``; docs/results.md).
+        ``"ad"``: the paper's Eq. (1) cost on the tree (Yang), which assumes equal
+        exposure in both cameras.
+    sgm_p1, sgm_p2 : float
+        Semi-global penalties of a one-level and of a larger disparity change, as
+        multiples of the cost volume's typical margin (the data term's own scale, so the
+        same multiples serve every scene, size and cost); the sweep is in docs/results.md
+        (``benchmarks/evaluate_real.py --param sgm_p2=4``).
+    hybrid_sgm_p2 : float
+        P2 of Hybrid's semi-global aggregation.  A sample grid's filled cost separates
+        disparities less sharply than a full pair's census, so its margin calls for a
+        stronger smoothness term: on 8 scenes (6 real, 2 Middlebury) at stride 5 P2 = 4,
+        8, 16, 32 gave 24.65, 24.03, 23.48, 23.13 % mean bad pixels, the last two losing
+        on Middlebury (Tsukuba 7.8 -> 8.4 -> 8.8); 16 is the compromise.
+    sgm_edge_scale : float
+        Gray-level difference across which P2 halves (depth edges follow colour edges).
+    sgm_paths : {4, 8}
+        Semi-global paths: horizontal and vertical, plus the diagonals for 8.
+    right_check : {"tree", "diagonal"}
+        Where the left-right check of Hybrid, Downsample and the full pair gets the right
+        view's disparity: ``"tree"`` aggregates the right view's costs on the right
+        image's own tree (Yang); ``"diagonal"`` reads it off the left view's aggregated
+        costs, normalised by each pixel's tree support (Hirschmüller's search), which
+        saves a tree and an aggregation but lets more errors pass the check: measured
+        0.3-0.5 pp worse on the 9-scene mean, up to 2.5 pp on Teddy (benchmarks/bench.py).
+    """
+
+    sigma_r: float = 15.0
+    sigma_s_per_stride: float = 2.0
+    truncation: float = DEFAULT_TRUNCATION
+    full_truncation: float = 7.0
+    grad_truncation: float = 2.0
+    tree_sigma: float = 0.1 * 255
+    tree_median: int = 3
+    grad_weight: float = 0.89
+    median_size: int = 3
+    lowpass_per_stride: float = 0.5
+    step_weight: float = 0.4
+    step_truncation: float = 5.0
+    sparse_census_weight: float = 0.5
+    noise_reference: float | None = 2.5
+    hybrid_sparse_weight: float | None = None
+    grid_cells_per_sigma_s: float = 1.0
+    grid_cells_per_sigma_r: float = 1.0
+    hybrid_aggregation: str = "semiglobal_census"
+    full_cost: str = "census"
+    sgm_p1: float = 1.0
+    sgm_p2: float = 8.0
+    hybrid_sgm_p2: float = 16.0
+    sgm_edge_scale: float = 8.0
+    sgm_paths: int = 8
+    right_check: str = "tree"
+
+
+@dataclass
+class DecodeResult:
+    """Output of :func:`decode`.
+
+    Attributes
+    ----------
+    disparity : ndarray, float32 (H, W)
+        Disparity of the left view in pixels; NaN where invalid.
+    method : str
+    min_disp, max_disp : int
+    timings : dict
+        Seconds per stage.
+    """
+
+    disparity: np.ndarray
+    method: str
+    min_disp: int
+    max_disp: int
+    timings: dict = field(default_factory=dict)
+    params: DecoderParams = field(default_factory=DecoderParams)
+
+    def summary(self) -> dict:
+        return {"method": self.method, "min_disp": self.min_disp, "max_disp": self.max_disp,
+                "timings": {k: round(v, 4) for k, v in self.timings.items()}, "params": asdict(self.params)}
+
+
+class StageTimer:
+    """``with timer(stage):`` adds the block's wall time to ``timings[stage]``."""
+
+    def __init__(self):
+        self.timings = {}
+
+    def __call__(self, name):
+        return _Stage(self.timings, name)
+
+
+class _Stage:
+    # A plain class made once (a class made per stage cost ~0.3 ms per decode).
+    __slots__ = ("timings", "name", "start")
+
+    def __init__(self, timings, name):
+        self.timings, self.name = timings, name
+
+    def __enter__(self):
+        self.start = time.perf_counter()
+
+    def __exit__(self, *exc):
+        self.timings[self.name] = self.timings.get(self.name, 0.0) + time.perf_counter() - self.start
+
+
+def check_inputs(left: np.ndarray, samples: SampleSet, *, min_disp: int, max_disp: int) -> None:
+    """Raise :class:`MismatchError` / :class:`OptionError` when left image, samples and range disagree."""
+    h, w = left.shape[:2]
+    c = 1 if left.ndim == 2 else left.shape[2]
+    if (h, w) != (samples.height, samples.width):
+        raise MismatchError(f"left image is {w}x{h} but the samples are of a {samples.width}x{samples.height} image")
+    if c != samples.channels:
+        raise MismatchError(f"left image has {c} channel(s) but the samples have {samples.channels}")
+    if left.dtype != samples.dtype:
+        raise MismatchError(f"left image is {left.dtype} but the samples are {samples.dtype}")
+    if max_disp <= min_disp:
+        raise OptionError(f"--max-disp ({max_disp}) must be greater than --min-disp ({min_disp})")
+    if max_disp - min_disp >= w or abs(min_disp) >= w or abs(max_disp) >= w:
+        raise OptionError(f"disparity range [{min_disp}, {max_disp}] does not fit an image {w} pixels wide")
+
+
+def is_full_grid(samples: SampleSet) -> bool:
+    p = samples.pattern
+    return p.kind == "grid" and p.stride_x == 1 and p.stride_y == 1
+
+
+def adapt_to_noise(params: DecoderParams, left: np.ndarray, *, method: str,
+                   gray: np.ndarray | None = None) -> DecoderParams:
+    """Raise the cost truncations above what the left image's noise alone produces.
+
+    With gray-level noise sigma (:func:`stereobudget.cost.noise_level`), two matching
+    pixels differ by about ``2 sigma`` in colour, ``sigma`` in x-gradient and ``2 sigma``
+    in a grid step; a truncation below a few times that saturates on noise and the cost
+    stops discriminating.  Each truncation of a cost computed on full-resolution pixels
+    (the Sparse DSI of ``sparse``/``hybrid``, the dense DSI of ``full``) is therefore at
+    least ``noise_reference`` times its noise scale.  Hybrid's interpolated DSI and
+    Downsample work on low-passed images whose noise is already averaged away, so they
+    keep their truncations.  On Middlebury (sigma 0.7-2.05) this only touches Cones.
+    ``gray``: I1 as :func:`stereobudget.cost.to_gray` of its float image, when the caller
+    has it already (the noise is measured on it).
+    """
+    if params.noise_reference is None:
+        return params
+    sigma = noise_level_of_gray(gray) if gray is not None else noise_level(to_float_image(left))
+    k = params.noise_reference
+    changes = {"noise_reference": None}
+    if method in ("sparse", "hybrid"):
+        changes.update(truncation=max(params.truncation, 2 * k * sigma),
+                       step_truncation=max(params.step_truncation, 2 * k * sigma))
+    elif method == "full":
+        changes.update(full_truncation=max(params.full_truncation, 2 * k * sigma),
+                       grad_truncation=max(params.grad_truncation, k * sigma))
+    return replace(params, **changes)
+
+
+
+def sampling_stride(samples: SampleSet) -> float:
+    """The geometric mean of the pattern's strides: the scale of the fill and the low-pass."""
+    return float(np.sqrt(samples.pattern.stride_x * samples.pattern.stride_y))
+
+
+def resolve_method(left, samples, *, method, params, min_disp, max_disp, adapt=True):
+    """Validate the inputs, pick the method a sample set implies, and (``adapt``) adapt the
+    params to I1's noise."""
+    params = params or DecoderParams()
+    method = method or DEFAULT_METHOD
+    if method not in METHODS:
+        raise OptionError(f"unknown method {method!r}; expected one of {', '.join(METHODS)}")
+    if params.hybrid_aggregation not in ("tree", "semiglobal", "semiglobal_census"):
+        raise OptionError(f"unknown hybrid_aggregation {params.hybrid_aggregation!r}; expected 'tree' or 'semiglobal'")
+    if params.full_cost not in ("census", "ad"):
+        raise OptionError(f"unknown full_cost {params.full_cost!r}; expected 'census' or 'ad'")
+    if params.right_check not in ("tree", "diagonal"):
+        raise OptionError(f"unknown right_check {params.right_check!r}; expected 'tree' or 'diagonal'")
+    check_inputs(left, samples, min_disp=min_disp, max_disp=max_disp)
+    if is_full_grid(samples):
+        method = "full"
+    elif method == "full":
+        raise OptionError(f"--method full needs every pixel of I2 (a sample file written with --stride 1); "
+                          f"this one holds {samples.pattern.kind} samples at stride "
+                          f"{samples.pattern.stride_x}x{samples.pattern.stride_y}")
+    return method, (adapt_to_noise(params, left, method=method) if adapt else params)
