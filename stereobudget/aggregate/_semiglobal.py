@@ -12,44 +12,80 @@ between p - r and p, P2(p, r) = max(P1, P2 / (1 + |I1(p) - I1(p - r)| / edge_sca
 so depth edges are cheap where colour edges are.  Unlike the tree filter, the paths
 keep a slanted plane's gradual change of disparity: only the steps are charged.
 
-Volumes: the cost is uint8 (H, W, D); the sum is float32 (H, W, D), with a second one
-while the paths from below are summed apart (9 bytes per pixel and disparity at the
-peak); the paths keep two rows of float32 (W, D) per direction.
+Volumes: the cost is uint8 or float32 (H, W, D).  The paths from above and those from
+below are summed into two float32 (H, W, D) volumes, each pass on its own thread (8 bytes
+per pixel and disparity at the peak); the horizontal paths and the sum of the two are
+taken row by row in a (W, D) float32 buffer, where the winners are searched too, so the
+sum is never written out unless asked for (:func:`semiglobal_aggregate`).  The paths keep
+two rows of float32 (W, D) per direction.
+
+Every sum is formed in one fixed order (paths from above, left to right, right to left,
+paths from below), so the fused route (:func:`semiglobal_disparities`) and the volume
+(:func:`semiglobal_aggregate`) followed by :func:`semiglobal_winners` agree bit for bit.
 """
 
 import numpy as np
 from numba import njit, prange
 
-from ._winner import refined_winner
+from ._winner import refined_winner, subpixel_winner
+
+
+@njit(cache=True, inline="always")
+def _smallest(values):
+    """The smallest of ``values`` (float32, no NaN), in eight interleaved running minima.
+
+    One running minimum is a chain of compare-and-selects that LLVM will not reorder (it
+    could for floats only under fast-math flags), so it stays scalar; eight independent
+    ones become one vector minimum per eight layers.  The minimum of finite values does
+    not depend on the order it is taken in, so this is bit for bit a plain loop's.
+    """
+    n = values.shape[0]
+    m0 = m1 = m2 = m3 = m4 = m5 = m6 = m7 = np.float32(np.inf)
+    d = 0
+    while d + 8 <= n:
+        m0 = min(m0, values[d])
+        m1 = min(m1, values[d + 1])
+        m2 = min(m2, values[d + 2])
+        m3 = min(m3, values[d + 3])
+        m4 = min(m4, values[d + 4])
+        m5 = min(m5, values[d + 5])
+        m6 = min(m6, values[d + 6])
+        m7 = min(m7, values[d + 7])
+        d += 8
+    best = min(min(min(m0, m1), min(m2, m3)), min(min(m4, m5), min(m6, m7)))
+    for k in range(d, n):
+        best = min(best, values[k])
+    return best
 
 
 @njit(cache=True, inline="always")
 def _path_step(cost, prev, prev_min, p1, p2, out):
-    """One step of a path: ``out`` from the predecessor's ``prev``; returns min of ``out``."""
+    """One step of a path: ``out`` from the predecessor's ``prev``; returns min of ``out``.
+
+    The first and last layers, which have one neighbour, are taken apart so that the
+    loop over the others has no branch and vectorises.  min(a + P1, b + P1) is
+    min(a, b) + P1 exactly (rounding is monotonic), so one addition serves both
+    neighbours.
+    """
     nd = cost.shape[0]
     jump = prev_min + p2
-    best = np.float32(np.inf)
-    for d in range(nd):
-        v = prev[d]
-        if d > 0:
-            v = min(v, prev[d - 1] + p1)
-        if d < nd - 1:
-            v = min(v, prev[d + 1] + p1)
-        v = min(v, jump)
-        value = np.float32(cost[d]) + v - prev_min
-        out[d] = value
-        best = min(best, value)
-    return best
+    if nd == 1:
+        out[0] = np.float32(cost[0]) + min(prev[0], jump) - prev_min
+        return out[0]
+    out[0] = np.float32(cost[0]) + min(min(prev[0], prev[1] + p1), jump) - prev_min
+    for d in range(1, nd - 1):
+        out[d] = np.float32(cost[d]) + min(min(prev[d], min(prev[d - 1], prev[d + 1]) + p1), jump) - prev_min
+    last = nd - 1
+    out[last] = np.float32(cost[last]) + min(min(prev[last], prev[last - 1] + p1), jump) - prev_min
+    return _smallest(out)
 
 
 @njit(cache=True, inline="always")
 def _path_start(cost, out):
     nd = cost.shape[0]
-    best = np.float32(np.inf)
     for d in range(nd):
         out[d] = np.float32(cost[d])
-        best = min(best, out[d])
-    return best
+    return _smallest(out)
 
 
 @njit(cache=True, inline="always")
@@ -57,30 +93,10 @@ def _edge_p2(a, b, p1, p2, edge_scale):
     return max(p1, p2 / (np.float32(1.0) + abs(a - b) / edge_scale))
 
 
-@njit(cache=True, parallel=True)
-def _horizontal_paths(cost, guide, p1, p2, edge_scale, total):
-    """Left-to-right and right-to-left paths of every row (rows are independent)."""
-    h, w, nd = cost.shape
-    for y in prange(h):
-        prev = np.empty(nd, np.float32)
-        cur = np.empty(nd, np.float32)
-        for direction in (1, -1):
-            start = 0 if direction == 1 else w - 1
-            prev_min = _path_start(cost[y, start], prev)
-            for d in range(nd):
-                total[y, start, d] += prev[d]
-            for i in range(1, w):
-                x = start + direction * i
-                p2e = _edge_p2(guide[y, x], guide[y, x - direction], p1, p2, edge_scale)
-                prev_min = _path_step(cost[y, x], prev, prev_min, p1, p2e, cur)
-                for d in range(nd):
-                    total[y, x, d] += cur[d]
-                prev, cur = cur, prev
-
-
 @njit(cache=True)
 def _vertical_pass(cost, guide, direction, steps, p1, p2, edge_scale, total):
-    """The paths that come from the row before (``direction`` 1: from above, -1: from below)."""
+    """The paths that come from the row before (``direction`` 1: from above, -1: from below),
+    summed into ``total`` (overwritten)."""
     h, w, nd = cost.shape
     npaths = steps.shape[0]
     # Two row buffers per path, used in turn for the previous and the current row.
@@ -99,6 +115,9 @@ def _vertical_pass(cost, guide, direction, steps, p1, p2, edge_scale, total):
                 else:
                     p2e = _edge_p2(guide[y, x], guide[y - direction, xp], p1, p2, edge_scale)
                     cur_min[k, x] = _path_step(cost[y, x], prev[k, xp], prev_min[k, xp], p1, p2e, cur[k, x])
+            for d in range(nd):
+                total[y, x, d] = cur[0, x, d]
+            for k in range(1, npaths):
                 for d in range(nd):
                     total[y, x, d] += cur[k, x, d]
 
@@ -116,11 +135,89 @@ def _vertical_paths(cost, guide, p1, p2, edge_scale, diagonals, down, up):
             _vertical_pass(cost, guide, -1, steps, p1, p2, edge_scale, up)
 
 
+@njit(cache=True, inline="always")
+def _row_total(cost, guide, p1, p2, edge_scale, down, up, y, row, path):
+    """``row`` (W, D) = the paths from above at row ``y`` + left to right + right to left +
+    the paths from below.  ``row`` may be ``down[y]`` itself."""
+    w, nd = cost.shape[1], cost.shape[2]
+    for direction in (1, -1):
+        start = 0 if direction == 1 else w - 1
+        prev, cur = path[0], path[1]
+        prev_min = _path_start(cost[y, start], prev)
+        for i in range(w):
+            x = start + direction * i
+            if i > 0:
+                p2e = _edge_p2(guide[y, x], guide[y, x - direction], p1, p2, edge_scale)
+                prev_min = _path_step(cost[y, x], prev, prev_min, p1, p2e, cur)
+                prev, cur = cur, prev
+            if direction == 1:
+                for d in range(nd):
+                    row[x, d] = down[y, x, d] + prev[d]
+            else:
+                for d in range(nd):
+                    row[x, d] += prev[d]
+    for x in range(w):
+        for d in range(nd):
+            row[x, d] += up[y, x, d]
+
+
+@njit(cache=True)
+def _row_winners(row, min_disp, y, left, right):
+    """Left and right winners of row ``y`` from its aggregated cost ``row`` (W, D)."""
+    w, nd = row.shape
+    for x in range(w):
+        left[y, x] = subpixel_winner(row[x], min_disp)
+        best_r = -1
+        best_v = np.float32(np.inf)
+        for k in range(nd):
+            xl = x + min_disp + k
+            if 0 <= xl < w and row[xl, k] < best_v:
+                best_v = row[xl, k]
+                best_r = k
+        right[y, x] = np.float32(min_disp + best_r) if best_r >= 0 else np.float32(np.nan)
+
+
+#: Rows per task of the row-by-row kernels (each task allocates its buffers once).
+_ROW_BLOCK = 16
+
+
 @njit(cache=True, parallel=True)
-def _add_into(total, other):
-    h = total.shape[0]
-    for y in prange(h):
-        total[y] += other[y]
+def _horizontal_paths_into(cost, guide, p1, p2, edge_scale, down, up):
+    """``down`` += the horizontal paths and ``up``, row by row (the aggregated volume)."""
+    h, w, nd = cost.shape
+    for block in prange((h + _ROW_BLOCK - 1) // _ROW_BLOCK):
+        path = np.empty((2, nd), np.float32)
+        for y in range(block * _ROW_BLOCK, min(h, (block + 1) * _ROW_BLOCK)):
+            _row_total(cost, guide, p1, p2, edge_scale, down, up, y, down[y], path)
+
+
+@njit(cache=True, parallel=True)
+def _horizontal_paths_winners(cost, guide, p1, p2, edge_scale, down, up, min_disp):
+    """The winners of every row of the aggregated volume, each row summed in a buffer."""
+    h, w, nd = cost.shape
+    left = np.empty((h, w), np.float32)
+    right = np.empty((h, w), np.float32)
+    for block in prange((h + _ROW_BLOCK - 1) // _ROW_BLOCK):
+        path = np.empty((2, nd), np.float32)
+        row = np.empty((w, nd), np.float32)
+        for y in range(block * _ROW_BLOCK, min(h, (block + 1) * _ROW_BLOCK)):
+            _row_total(cost, guide, p1, p2, edge_scale, down, up, y, row, path)
+            _row_winners(row, min_disp, y, left, right)
+    return left, right
+
+
+def _vertical_sums(cost, guide, p1, p2, edge_scale, paths):
+    if paths not in (4, 8):
+        raise ValueError(f"semi-global aggregation takes 4 or 8 paths, not {paths}")
+    if cost.dtype != np.uint8:
+        cost = np.ascontiguousarray(cost, np.float32)
+    cost = np.ascontiguousarray(cost)
+    guide = np.ascontiguousarray(guide, np.float32)
+    down = np.empty(cost.shape, np.float32)
+    up = np.empty(cost.shape, np.float32)
+    p1, p2, scale = np.float32(p1), np.float32(max(p1, p2)), np.float32(edge_scale)
+    _vertical_paths(cost, guide, p1, p2, scale, paths == 8, down, up)
+    return cost, guide, p1, p2, scale, down, up
 
 
 def semiglobal_aggregate(cost: np.ndarray, guide: np.ndarray, *, p1: float, p2: float,
@@ -130,7 +227,7 @@ def semiglobal_aggregate(cost: np.ndarray, guide: np.ndarray, *, p1: float, p2: 
     Parameters
     ----------
     cost : ndarray, uint8 or float32 (H, W, D)
-        Matching cost volume of the left view.
+        Matching cost volume of the left view (non-negative, no NaN).
     guide : ndarray, float32 (H, W)
         I1's gray image, whose edges lower P2.
     p1, p2 : float
@@ -144,19 +241,31 @@ def semiglobal_aggregate(cost: np.ndarray, guide: np.ndarray, *, p1: float, p2: 
     -------
     ndarray, float32 (H, W, D)
     """
-    if paths not in (4, 8):
-        raise ValueError(f"semi-global aggregation takes 4 or 8 paths, not {paths}")
-    if cost.dtype != np.uint8:
-        cost = np.ascontiguousarray(cost, np.float32)
-    cost = np.ascontiguousarray(cost)
-    guide = np.ascontiguousarray(guide, np.float32)
-    total = np.zeros(cost.shape, np.float32)
-    from_below = np.zeros(cost.shape, np.float32)
-    p1, p2, scale = np.float32(p1), np.float32(max(p1, p2)), np.float32(edge_scale)
-    _vertical_paths(cost, guide, p1, p2, scale, paths == 8, total, from_below)
-    _horizontal_paths(cost, guide, p1, p2, scale, total)
-    _add_into(total, from_below)
-    return total
+    cost, guide, p1, p2, scale, down, up = _vertical_sums(cost, guide, p1, p2, edge_scale, paths)
+    _horizontal_paths_into(cost, guide, p1, p2, scale, down, up)
+    return down
+
+
+def semiglobal_disparities(cost: np.ndarray, guide: np.ndarray, *, min_disp: int, p1: float, p2: float,
+                           edge_scale: float = 8.0, paths: int = 8):
+    """:func:`semiglobal_winners` of :func:`semiglobal_aggregate`, without writing the sum out.
+
+    The last pass (the horizontal paths) takes the winners of each row as soon as the
+    row's sum is complete; the result is the two-step route's bit for bit.
+
+    Parameters
+    ----------
+    cost, guide, p1, p2, edge_scale, paths
+        As for :func:`semiglobal_aggregate`.
+    min_disp : int
+
+    Returns
+    -------
+    left, right : ndarray, float32 (H, W)
+        As from :func:`semiglobal_winners`.
+    """
+    cost, guide, p1, p2, scale, down, up = _vertical_sums(cost, guide, p1, p2, edge_scale, paths)
+    return _horizontal_paths_winners(cost, guide, p1, p2, scale, down, up, int(min_disp))
 
 
 def semiglobal_aggregate_reference(cost, guide, *, p1, p2, edge_scale=8.0, paths=8):

@@ -20,7 +20,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..aggregate._refine import fill_from_row, full_pair_disparity, left_right_stable, median_filter_disparity
-from ..aggregate._semiglobal import semiglobal_aggregate, semiglobal_winners
+from ..aggregate._semiglobal import semiglobal_disparities
 from ..cost._census import census_cost_volume
 from ..cost._cost import to_gray
 from ..fill._lowpass import _sample_values_f32
@@ -109,11 +109,10 @@ def semiglobal_disparity(cost, guide, *, min_disp, p1, p2, params, timer):
     ndarray, float32 (H, W)
     """
     with timer("aggregate"):
-        total = semiglobal_aggregate(cost, guide, p1=p1, p2=p2, edge_scale=params.sgm_edge_scale,
-                                     paths=params.sgm_paths)  # float32
+        # The winners are taken row by row as the last pass completes each row's sum.
+        disp_left, disp_right = semiglobal_disparities(cost, guide, min_disp=int(min_disp), p1=p1, p2=p2,
+                                                       edge_scale=params.sgm_edge_scale, paths=params.sgm_paths)
         del cost
-        disp_left, disp_right = semiglobal_winners(total, int(min_disp))
-        del total
     with timer("refine"):
         stable = left_right_stable(disp_left, disp_right, np.float32(1.0))
         return median_filter_disparity(fill_from_row(disp_left, stable), params.median_size)

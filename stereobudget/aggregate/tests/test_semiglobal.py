@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from stereobudget.aggregate._semiglobal import (semiglobal_aggregate, semiglobal_aggregate_reference,
-                                                semiglobal_winners)
+                                                semiglobal_disparities, semiglobal_winners)
 
 
 @pytest.mark.parametrize("paths", [4, 8])
@@ -54,3 +54,23 @@ def test_fill_from_row_takes_the_nearest_valid_pixel():
                 distance = np.abs(good - x)
                 nearest = good[np.flatnonzero(distance == distance.min())[0]]   # the left one on a tie
                 assert out[y, x] == disparity[y, nearest]
+
+
+@pytest.mark.parametrize("paths", [4, 8])
+@pytest.mark.parametrize("dtype", [np.uint8, np.float32])
+def test_fused_winners_match_the_two_steps(paths, dtype):
+    rng = np.random.default_rng(7)
+    cost = rng.integers(0, 40, (11, 23, 9)).astype(dtype)
+    guide = rng.uniform(0, 255, (11, 23)).astype(np.float32)
+    kwargs = dict(p1=2.5, p2=17.0, edge_scale=8.0, paths=paths)
+    left, right = semiglobal_disparities(cost, guide, min_disp=2, **kwargs)
+    want_left, want_right = semiglobal_winners(semiglobal_aggregate(cost, guide, **kwargs), 2)
+    np.testing.assert_array_equal(left, want_left)
+    np.testing.assert_array_equal(right, want_right)
+
+
+def test_a_single_disparity_layer():
+    cost = np.arange(12, dtype=np.uint8).reshape(3, 4, 1)
+    guide = np.zeros((3, 4), np.float32)
+    fast = semiglobal_aggregate(cost, guide, p1=1.0, p2=4.0)
+    np.testing.assert_allclose(fast, semiglobal_aggregate_reference(cost, guide, p1=1.0, p2=4.0))
