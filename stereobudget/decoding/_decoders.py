@@ -228,8 +228,11 @@ def check_inputs(left: np.ndarray, samples: SampleSet, *, min_disp: int, max_dis
     c = 1 if left.ndim == 2 else left.shape[2]
     if (h, w) != (samples.height, samples.width):
         raise MismatchError(f"left image is {w}x{h} but the samples are of a {samples.width}x{samples.height} image")
-    if c != samples.channels:
-        raise MismatchError(f"left image has {c} channel(s) but the samples have {samples.channels}")
+    expected = getattr(samples, "colour_channels", samples.channels)   # 3 for a raw mosaic
+    if c != expected:
+        raise MismatchError(f"left image has {c} channel(s) but the samples have {samples.channels}"
+                            + (f" ({samples.channel_order}: compared with an RGB left image)"
+                               if expected != samples.channels else ""))
     if left.dtype != samples.dtype:
         raise MismatchError(f"left image is {left.dtype} but the samples are {samples.dtype}")
     if max_disp <= min_disp:
@@ -432,6 +435,8 @@ def _resolve_method(left, samples, *, method, params, min_disp, max_disp, adapt=
     if params.right_check not in ("tree", "diagonal"):
         raise OptionError(f"unknown right_check {params.right_check!r}; expected 'tree' or 'diagonal'")
     check_inputs(left, samples, min_disp=min_disp, max_disp=max_disp)
+    from ._mosaic import mosaic_decoding
+    method, params = mosaic_decoding(samples, method=method, params=params)
     if _is_full_grid(samples):
         method = "full"
     elif method == "full":
@@ -599,8 +604,9 @@ def _band_samples(samples: SampleSet, top: int, bottom: int):
     last = max(first, -(-(bottom - p.offset_y) // p.stride_y))
     pattern = _replace(p, offset_y=p.offset_y + first * p.stride_y - top)
     values = samples.grid_values()[first:last].reshape(-1, samples.channels)
-    return SampleSet(height=int(bottom - top), width=samples.width, channel_order=samples.channel_order,
-                     pattern=pattern, values=np.ascontiguousarray(values), codec=samples.codec,
+    from ..io._mosaic import shifted_order  # a mosaic band starting on an odd row: the next tile row's pattern
+    return SampleSet(height=int(bottom - top), width=samples.width,
+                     channel_order=shifted_order(samples.channel_order, rows=top), pattern=pattern, values=np.ascontiguousarray(values), codec=samples.codec,
                      value_bits=samples.value_bits, quality=samples.quality)
 
 
@@ -619,6 +625,9 @@ class _BandSamples:
         self._rows = (np.asarray(rows)[keep] - top).astype(np.int64)
         self._cols = np.asarray(cols)[keep].astype(np.int64)
         self._values = samples.values_rgb()[keep]
+        self.mosaic = getattr(samples, "mosaic", None)
+        self._colours = samples.sample_colours()[keep] if self.mosaic else None
+        self.colour_channels = getattr(samples, "colour_channels", samples.channels)
         self.height = int(bottom - top)
         self.width = samples.width
         self.channels = samples.channels
@@ -634,6 +643,9 @@ class _BandSamples:
 
     def values_rgb(self) -> np.ndarray:
         return self._values
+
+    def sample_colours(self) -> np.ndarray:
+        return self._colours
 
 
 def auto_tile_rows(samples: SampleSet, *, num_disp: int, method: str, params: DecoderParams | None = None,
