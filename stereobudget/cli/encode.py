@@ -20,7 +20,9 @@ from . import _common as common
 
 log = logging.getLogger("stereobudget")
 
-_RAW_PIX_FMTS = ("gray8", "rgb24", "bgr24", "gray16le")   # = imageio.RAW_PIXEL_FORMATS
+_RAW_PIX_FMTS = ("gray8", "rgb24", "bgr24", "gray16le",   # = imageio.RAW_PIXEL_FORMATS
+                 "bayer_rggb8", "bayer_bggr8", "bayer_grbg8", "bayer_gbrg8",
+                 "bayer_rggb16le", "bayer_bggr16le", "bayer_grbg16le", "bayer_gbrg16le")
 _U16 = click.IntRange(1, 65535)
 
 
@@ -184,7 +186,8 @@ def _show_info(path, *, verify: bool) -> None:
 @click.option("--raw", "raw_size", metavar="WxH", default=None,
               help="Input is headerless frames of this size, one or a stream of them (needs --pix-fmt).")
 @click.option("--pix-fmt", type=click.Choice(_RAW_PIX_FMTS), default=None,
-              help="Pixel format of a --raw frame.")
+              help="Pixel format of a --raw frame; bayer_* is a raw sensor mosaic (one value per pixel, "
+                   "sent as it is: no demosaicing; use an odd --stride so that every colour is sampled).")
 @click.option("--codec", type=click.Choice(["raw", "lossless", "deflate", "webp_lossless", "jxl_lossless",
                                              "webp", "jxl"]),
               default="raw", show_default=True,

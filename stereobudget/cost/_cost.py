@@ -93,11 +93,18 @@ def pixel_cost(left_pixel, right_pixel, truncation):
 
     The paper's ``max(|I1 - I2|, delta)`` only marks "a sample exists"; the library keeps an
     explicit sample mask instead, so no delta is needed here.
+
+    A NaN channel of ``right_pixel`` is not compared: a raw-mosaic sample carries one colour
+    (:func:`stereobudget.io._mosaic.rgb_with_gaps`), so it meets only that channel of I1.
     """
     acc = np.float32(0.0)
+    compared = 0
     for c in range(left_pixel.shape[0]):
-        acc += abs(left_pixel[c] - right_pixel[c])
-    acc /= left_pixel.shape[0]
+        r = right_pixel[c]
+        if r == r:
+            acc += abs(left_pixel[c] - r)
+            compared += 1
+    acc /= compared
     return min(acc, truncation)
 
 

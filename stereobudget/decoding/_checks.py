@@ -78,7 +78,7 @@ def psnr_at_samples(left: np.ndarray, disparity: np.ndarray, samples) -> float:
     if not reached.any():
         return math.nan
     diff = warped[rows[reached], cols[reached]].astype(np.float64) - values[reached]
-    mse = float(np.mean(diff * diff))
+    mse = float(np.nanmean(diff * diff))   # NaN: the channels a mosaic sample does not carry
     return math.inf if mse == 0.0 else 10.0 * math.log10(255.0 ** 2 / mse)
 
 

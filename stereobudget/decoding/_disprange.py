@@ -221,7 +221,9 @@ def _match_inputs(left: np.ndarray, samples):
     """
     p = samples.pattern
     h, w = samples.height, samples.width
-    if p.is_regular_grid:
+    # A raw mosaic's lattice alternates colours: it goes the scattered points' way below,
+    # whose interpolation normalises each colour by its own samples.
+    if p.is_regular_grid and not getattr(samples, "mosaic", None):
         lattice = _gray(samples.grid_values())
         ys = p.offset_y + p.stride_y * np.arange(lattice.shape[0])
         xs = p.offset_x + p.stride_x * np.arange(lattice.shape[1])

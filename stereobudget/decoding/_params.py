@@ -196,8 +196,11 @@ def check_inputs(left: np.ndarray, samples: SampleSet, *, min_disp: int, max_dis
     c = 1 if left.ndim == 2 else left.shape[2]
     if (h, w) != (samples.height, samples.width):
         raise MismatchError(f"left image is {w}x{h} but the samples are of a {samples.width}x{samples.height} image")
-    if c != samples.channels:
-        raise MismatchError(f"left image has {c} channel(s) but the samples have {samples.channels}")
+    expected = getattr(samples, "colour_channels", samples.channels)   # 3 for a raw mosaic
+    if c != expected:
+        raise MismatchError(f"left image has {c} channel(s) but the samples have {samples.channels}"
+                            + (f" ({samples.channel_order}: compared with an RGB left image)"
+                               if expected != samples.channels else ""))
     if left.dtype != samples.dtype:
         raise MismatchError(f"left image is {left.dtype} but the samples are {samples.dtype}")
     if max_disp <= min_disp:
@@ -260,6 +263,8 @@ def resolve_method(left, samples, *, method, params, min_disp, max_disp, adapt=T
     if params.right_check not in ("tree", "diagonal"):
         raise OptionError(f"unknown right_check {params.right_check!r}; expected 'tree' or 'diagonal'")
     check_inputs(left, samples, min_disp=min_disp, max_disp=max_disp)
+    from ._mosaic import mosaic_decoding
+    method, params = mosaic_decoding(samples, method=method, params=params)
     if is_full_grid(samples):
         method = "full"
     elif method == "full":

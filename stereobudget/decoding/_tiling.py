@@ -43,7 +43,9 @@ def _band_samples(samples: SampleSet, top: int, bottom: int):
     last = max(first, -(-(bottom - p.offset_y) // p.stride_y))
     pattern = replace(p, offset_y=p.offset_y + first * p.stride_y - top)
     values = samples.grid_values()[first:last].reshape(-1, samples.channels)
-    return SampleSet(height=int(bottom - top), width=samples.width, channel_order=samples.channel_order,
+    from ..io._mosaic import shifted_order  # a mosaic band starting on an odd row: the next tile row's pattern
+    return SampleSet(height=int(bottom - top), width=samples.width,
+                     channel_order=shifted_order(samples.channel_order, rows=top),
                      pattern=pattern, values=np.ascontiguousarray(values), codec=samples.codec,
                      value_bits=samples.value_bits, quality=samples.quality)
 
@@ -63,6 +65,9 @@ class _BandSamples:
         self._rows = (np.asarray(rows)[keep] - top).astype(np.int64)
         self._cols = np.asarray(cols)[keep].astype(np.int64)
         self._values = samples.values_rgb()[keep]
+        self.mosaic = getattr(samples, "mosaic", None)
+        self._colours = samples.sample_colours()[keep] if self.mosaic else None
+        self.colour_channels = getattr(samples, "colour_channels", samples.channels)
         self.height = int(bottom - top)
         self.width = samples.width
         self.channels = samples.channels
@@ -78,6 +83,9 @@ class _BandSamples:
 
     def values_rgb(self) -> np.ndarray:
         return self._values
+
+    def sample_colours(self) -> np.ndarray:
+        return self._colours
 
 
 def auto_tile_rows(samples: SampleSet, *, num_disp: int, method: str, params: DecoderParams | None = None,

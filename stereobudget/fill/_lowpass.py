@@ -16,8 +16,17 @@ from ..sampling._patterns import grid_shape
 
 
 def _sample_values_f32(samples) -> np.ndarray:
-    """Sample values as float32 (n, C) RGB in 8-bit units."""
-    return to_float_image(samples.values_rgb()[:, None, :])[:, 0, :]
+    """Sample values as float32 (n, C) RGB in 8-bit units.
+
+    A raw-mosaic sample set gives (n, 3): each value in its colour's channel, NaN in the
+    other two (:func:`stereobudget.io._mosaic.rgb_with_gaps`), so each sample meets only
+    the matching channel of I1.
+    """
+    values = to_float_image(samples.values_rgb()[:, None, :])[:, 0, :]
+    if getattr(samples, "mosaic", None):
+        from ..io._mosaic import rgb_with_gaps
+        return rgb_with_gaps(values, samples.sample_colours())
+    return values
 
 
 def gaussian_taps(sigma: float) -> np.ndarray:
@@ -108,6 +117,8 @@ def lowpass_interpolation(samples, *, sigma: float) -> np.ndarray:
     """
     import cv2
     values = _sample_values_f32(samples)
+    if getattr(samples, "mosaic", None):
+        return _per_channel_interpolation(samples, values, sigma=sigma)
     height, width = samples.height, samples.width
     channels = values.shape[1]
     sample_count = values.shape[0]
@@ -131,6 +142,31 @@ def lowpass_interpolation(samples, *, sigma: float) -> np.ndarray:
     reached = weight > threshold
     # Unreached pixels divide by infinity (-> 0): one plain division, 2x faster than a masked one.
     return blurred[..., :channels] / np.where(reached, weight, np.float32(np.inf))[..., None]
+
+
+class _ValuesOf:
+    """A sample set's positions and pattern with other values (what :func:`lowpass_interpolation` reads)."""
+
+    def __init__(self, samples, values):
+        self.height, self.width, self.pattern = samples.height, samples.width, samples.pattern
+        self.positions = samples.positions
+        self._values = values
+
+    def values_rgb(self):
+        return self._values
+
+
+def _per_channel_interpolation(samples, values, *, sigma):
+    """:func:`lowpass_interpolation` of values with NaN gaps (mosaic samples): every channel
+    normalised by its own samples, i.e. the values (0 in the gaps) and their masks
+    interpolated together and divided.  A channel with no sample within reach is 0."""
+    known = ~np.isnan(values)
+    stacked = np.concatenate([np.where(known, values, np.float32(0.0)), known.astype(np.float32)], axis=1)
+    both = lowpass_interpolation(_ValuesOf(samples, stacked), sigma=sigma)
+    channels = values.shape[1]
+    weight = both[..., channels:]
+    return np.where(weight > np.float32(1e-6), both[..., :channels] / np.maximum(weight, np.float32(1e-6)),
+                    np.float32(0.0)).astype(np.float32)
 
 
 @njit(cache=True)

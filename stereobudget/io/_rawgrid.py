@@ -7,7 +7,7 @@ process free of numpy, numba and OpenCV, whose import dominates its run time.  T
 payload is byte-identical to what :func:`stereobudget.io.write_samples` produces
 from :func:`stereobudget.io.read_raw` + :func:`stereobudget.io.encode_image`:
 values in row-major transmission order, channels interleaved, uint16 little-endian
-(``gray16le`` already is).
+(``gray16le`` and the ``bayer_*16le`` mosaics already are).
 
 This module must not import numpy (checked by the tests).
 """
@@ -25,6 +25,12 @@ RAW_FORMATS = {
     "bgr24": (3, 1, "bgr"),
     "gray16le": (1, 2, "gray"),
 }
+# Raw sensor mosaics: one value per pixel, its colour given by the Bayer pattern
+# (stereobudget.io._mosaic); 16-bit values little-endian, as the camera delivers them.
+for _pattern in ("rggb", "bggr", "grbg", "gbrg"):
+    RAW_FORMATS[f"bayer_{_pattern}8"] = (1, 1, f"bayer_{_pattern}")
+    RAW_FORMATS[f"bayer_{_pattern}16le"] = (1, 2, f"bayer_{_pattern}")
+del _pattern
 
 
 def raw_frame_layout(*, width: int, height: int, pix_fmt: str, name: str = "<bytes>"):

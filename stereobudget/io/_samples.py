@@ -24,13 +24,20 @@ from ._atomic import STDIO, check_output_path, display_name, read_input_bytes, w
 from ..errors import (CorruptHeaderError, CorruptPayloadError, ImageReadError, NotASampleFileError, OptionError,
                      TruncatedFileError, UnsupportedVersionError)
 from ._limits import dimension_problem
+from ._mosaic import MOSAIC_ORDERS, mosaic_of
 from ._codecs import (CODEC_IDS, CODEC_NAMES, DEFAULT_QUALITY, IMAGE_CODECS, LATTICE_PATTERNS, LOSSY_CODECS,
                       check_coding, resolve_codec)
 from ..sampling._patterns import SamplingPattern, sample_count, sample_positions, grid_shape
 
 log = logging.getLogger("stereobudget")
 
-CHANNEL_ORDERS = ("gray", "rgb", "bgr")
+#: gray, colour, and raw Bayer mosaics (one value per sample, its colour set by its position).
+CHANNEL_ORDERS = ("gray", "rgb", "bgr") + MOSAIC_ORDERS
+
+
+def channel_count(channel_order: str) -> int:
+    """Values per sample of a channel order: 3 for ``rgb`` / ``bgr``, 1 for gray and mosaics."""
+    return 3 if channel_order in ("rgb", "bgr") else 1
 
 
 @dataclass(frozen=True, eq=False)
@@ -42,7 +49,9 @@ class SampleSet:
     height, width : int
         Size of the full right image I2.
     channel_order : str
-        ``"gray"`` (1 channel), ``"rgb"`` or ``"bgr"`` (3 channels).
+        ``"gray"`` (1 channel), ``"rgb"`` or ``"bgr"`` (3 channels), or a raw Bayer mosaic
+        ``"bayer_rggb"``, ``"bayer_bggr"``, ``"bayer_grbg"``, ``"bayer_gbrg"`` (1 value per
+        sample, the colour of the sample's pixel in the mosaic: :meth:`sample_colours`).
     pattern : SamplingPattern
         Where the samples lie.
     values : ndarray, shape (n, channels), uint8 or uint16
@@ -75,6 +84,8 @@ class SampleSet:
             raise ValueError(f"values must have shape (n, {self.channels}), got {v.shape}")
         if v.dtype not in (np.uint8, np.uint16):
             raise ValueError(f"values must be uint8 or uint16, got {v.dtype}")
+        if self.mosaic and self.pattern.kind == "downsample":
+            raise ValueError("a raw mosaic cannot be block-averaged (downsample would mix its colours)")
         n = sample_count(self.pattern, self.height, self.width)
         if v.shape[0] != n:
             raise ValueError(f"pattern {self.pattern.kind} on {self.width}x{self.height} has {n} samples, "
@@ -82,7 +93,26 @@ class SampleSet:
 
     @property
     def channels(self) -> int:
-        return 1 if self.channel_order == "gray" else 3
+        """Values per sample."""
+        return channel_count(self.channel_order)
+
+    @property
+    def mosaic(self) -> str | None:
+        """Bayer pattern of a raw-mosaic sample set (``"rggb"`` ...), None otherwise."""
+        return mosaic_of(self.channel_order)
+
+    @property
+    def colour_channels(self) -> int:
+        """Channels of the left image the samples are compared with (3 for a mosaic)."""
+        return 3 if self.mosaic else self.channels
+
+    def sample_colours(self):
+        """RGB channel index (int64 (n,), 0 R 1 G 2 B) of every sample of a mosaic, in transmission order."""
+        from ._mosaic import sample_colours
+        if not self.mosaic:
+            raise ValueError(f"channel order {self.channel_order!r} is not a mosaic")
+        rows, cols = self.positions()
+        return sample_colours(self.channel_order, rows, cols)
 
     @property
     def exact(self) -> bool:
@@ -134,6 +164,7 @@ def encode_image(image: np.ndarray, *, pattern: SamplingPattern, channel_order: 
         Where to sample.  ``downsample`` is the one pattern that computes (block means).
     channel_order : str, optional
         Channel order of ``image``; default ``"gray"`` for one channel, ``"rgb"`` for three.
+        A raw Bayer frame is one channel with its mosaic's order (``"bayer_rggb"`` ...).
     """
     import numpy as np
 
@@ -141,6 +172,9 @@ def encode_image(image: np.ndarray, *, pattern: SamplingPattern, channel_order: 
     h, w, c = img.shape
     if channel_order is None:
         channel_order = "gray" if c == 1 else "rgb"
+    if mosaic_of(channel_order) and pattern.kind == "downsample":
+        raise OptionError("--pattern downsample averages pixels and would mix a Bayer mosaic's colours; "
+                          "use grid, jitter, fps or adaptive_fps")
     if pattern.kind == "downsample":
         from ..sampling._patterns import downsample_blocks  # computes block means, camera side
         values = downsample_blocks(img, pattern)
@@ -164,8 +198,11 @@ def encode_image(image: np.ndarray, *, pattern: SamplingPattern, channel_order: 
 #: text-mode transfers (see docs/format.md).
 MAGIC = b"\x89SBS\r\n\x1a\n"
 VERSION_MAJOR = 1
-#: Newest minor version written: 1.1 adds payload coding (raw full-depth files stay 1.0).
-VERSION_MINOR = 1
+#: Newest minor version written: 1.1 adds payload coding (raw full-depth files stay 1.0),
+#: 1.2 the raw Bayer mosaics (channel orders 3-6; every other file is written as before).
+VERSION_MINOR = 2
+#: First minor version with the mosaic channel orders.
+MOSAIC_MINOR = 2
 #: Size of the version-1.0 header, in bytes; later 1.x headers may be longer.
 HEADER_SIZE_V1_0 = 80
 #: Largest header_length a reader accepts (the field is a u16).
@@ -184,7 +221,8 @@ assert len(MAGIC) + _FIELDS.size + 4 == HEADER_SIZE_V1_0
 _CODING = struct.Struct("<BBBBI8s")
 assert _CODING.size == 16
 
-CHANNEL_ORDER_CODES = {"gray": 0, "rgb": 1, "bgr": 2}
+CHANNEL_ORDER_CODES = {"gray": 0, "rgb": 1, "bgr": 2,
+                       "bayer_rggb": 3, "bayer_bggr": 4, "bayer_grbg": 5, "bayer_gbrg": 6}
 #: dtype code == bytes per value: 1 = uint8, 2 = uint16 little-endian.  (``DTYPE_CODES``,
 #: the same table keyed by numpy dtypes, is built on first access: see ``__getattr__``.)
 _DTYPE_NAMES = {1: "uint8", 2: "uint16"}
@@ -318,10 +356,13 @@ def _pack_file(*, width: int, height: int, channel_order: str, dtype_code: int, 
                sample_count: int, payload: bytes, minor: int = 0, coding: bytes = bytes(16)) -> bytes:
     """Header + ``payload`` (already in file byte order): the whole file, numpy-free.
 
-    ``minor`` 0 is a 1.0 file; 1.1 puts the 16 ``coding`` bytes in ``pattern_reserved``.
+    ``minor`` 0 is a 1.0 file; 1.1 puts the 16 ``coding`` bytes in ``pattern_reserved``;
+    a mosaic is always written as 1.2 (its channel order is unknown before).
     """
     p = pattern
-    channels = 1 if channel_order == "gray" else 3
+    channels = channel_count(channel_order)
+    if mosaic_of(channel_order):
+        minor = max(minor, MOSAIC_MINOR)
     fields = _FIELDS.pack(
         VERSION_MAJOR, minor, HEADER_SIZE_V1_0, width, height,
         channels, CHANNEL_ORDER_CODES[channel_order], dtype_code,
@@ -445,12 +486,17 @@ def _check_fields(f: dict, name: str) -> None:
     if f["channel_order_code"] not in _ORDER_BY_CODE:
         bad(f"unknown channel order code {f['channel_order_code']}")
     order = _ORDER_BY_CODE[f["channel_order_code"]]
-    if f["channels"] != (1 if order == "gray" else 3):
+    if f["channels"] != channel_count(order):
         bad(f"{f['channels']} channel(s) do not match channel order {order!r}")
+    if mosaic_of(order) and f["version_minor"] < MOSAIC_MINOR:
+        bad(f"channel order {order!r} (code {f['channel_order_code']}) needs format "
+            f"1.{MOSAIC_MINOR}, the header says 1.{f['version_minor']}")
     if f["dtype_code"] not in _DTYPE_NAMES:
         bad(f"unknown sample dtype code {f['dtype_code']}")
     if f["pattern_code"] not in _PATTERN_BY_CODE:
         bad(f"unknown sampling pattern code {f['pattern_code']}")
+    if mosaic_of(order) and _PATTERN_BY_CODE[f["pattern_code"]] == "downsample":
+        bad(f"a {order} mosaic cannot use the downsample pattern (block means would mix its colours)")
     if f["stride_x"] < 1 or f["stride_y"] < 1:
         bad(f"stride {f['stride_x']}x{f['stride_y']} must be >= 1")
     if f["offset_x"] >= f["stride_x"] or f["offset_y"] >= f["stride_y"]:

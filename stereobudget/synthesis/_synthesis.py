@@ -320,7 +320,8 @@ def sample_arrays(samples: SampleSet):
     -------
     rows, cols : ndarray of int64 (n,)
     values : ndarray, float32 (n, C)
-        RGB order (or gray), 8-bit units.
+        RGB order (or gray), 8-bit units; a raw mosaic gives (n, 3) with NaN in the two
+        channels each sample lacks.
 
     Raises
     ------
@@ -336,7 +337,25 @@ def sample_arrays(samples: SampleSet):
     if samples.pattern.kind == "downsample":
         raise OptionError("recovering I2 needs exact pixel samples; 'downsample' sends block means")
     values = to_float_image(samples.values_rgb()[:, None, :])[:, 0, :]
+    if samples.mosaic:
+        from ..io._mosaic import rgb_with_gaps
+        values = rgb_with_gaps(values, samples.sample_colours())
     return np.asarray(rows, np.int64), np.asarray(cols, np.int64), np.ascontiguousarray(values)
+
+
+def _gap_aware_filter(guide, rows, cols, values, **kwargs):
+    """:func:`stereobudget.fill.sparse_joint_bilateral` of values that may hold NaN gaps
+    (mosaic samples): each channel normalised by its own samples (0 where none reaches)."""
+    from ..fill._bilateral import sparse_joint_bilateral
+    known = ~np.isnan(values)
+    if known.all():
+        return sparse_joint_bilateral(guide, rows, cols, values, **kwargs)
+    n_ch = values.shape[1]
+    both = sparse_joint_bilateral(guide, rows, cols, np.concatenate(
+        [np.where(known, values, np.float32(0.0)), known.astype(np.float32)], axis=1), **kwargs)
+    weight = both[:, :, n_ch:]
+    return np.where(weight > 1e-6, both[:, :, :n_ch] / np.maximum(weight, np.float32(1e-6)),
+                    np.float32(0.0)).astype(np.float32)
 
 
 def _stride(samples: SampleSet) -> float:
@@ -361,7 +380,7 @@ def interpolate_samples(samples: SampleSet, *, lowpass_sigma: float = 0.0) -> np
 
     p = samples.pattern
     h, w = samples.height, samples.width
-    if p.is_regular_grid:
+    if p.is_regular_grid and not samples.mosaic:
         lattice = to_float_image(samples.grid_values()[:, :, ::-1] if samples.channel_order == "bgr"
                                  else samples.grid_values())
         if lowpass_sigma > 0:
@@ -373,12 +392,11 @@ def interpolate_samples(samples: SampleSet, *, lowpass_sigma: float = 0.0) -> np
         dense = cv2.remap(np.ascontiguousarray(lattice), map_x, map_y, cv2.INTER_LINEAR,
                           borderMode=cv2.BORDER_REPLICATE)
         return np.ascontiguousarray(dense.reshape(h, w, -1), dtype=np.float32)
-    from ..fill._bilateral import sparse_joint_bilateral
     rows, cols, values = sample_arrays(samples)
     # A constant guide and a huge range sigma turn the joint bilateral filter into a
-    # purely spatial normalised convolution.
+    # purely spatial normalised convolution (per channel for a mosaic's samples).
     flat = np.zeros((h, w), np.float32)
-    return sparse_joint_bilateral(flat, rows, cols, values, sigma_s=max(0.5 * _stride(samples), 1.0),
+    return _gap_aware_filter(flat, rows, cols, values, sigma_s=max(0.5 * _stride(samples), 1.0),
                                   sigma_r=1e4, missing_value=0.0)
 
 
@@ -462,8 +480,6 @@ def enhance_with_samples(image: np.ndarray, holes: np.ndarray, samples: SampleSe
     ndarray, float32 (H, W, C)
         The enhanced estimate, clipped to [0, 255] (samples not yet written back).
     """
-    from ..fill._bilateral import sparse_joint_bilateral
-
     img = np.asarray(image, dtype=np.float32)
     if img.ndim == 2:
         img = img[:, :, None]
@@ -477,7 +493,7 @@ def enhance_with_samples(image: np.ndarray, holes: np.ndarray, samples: SampleSe
     if sigma_s is None:
         sigma_s = DEFAULT_ENHANCE_SIGMA_S_PER_STRIDE * _stride(samples)
     channels = difference if shrinkage is None else np.concatenate([difference, difference ** 2], axis=1)
-    filtered = sparse_joint_bilateral(to_gray(img), rows, cols, channels, sigma_s=max(float(sigma_s), 1.0),
+    filtered = _gap_aware_filter(to_gray(img), rows, cols, channels, sigma_s=max(float(sigma_s), 1.0),
                                       sigma_r=float(sigma_r), missing_value=0.0,
                                       cells_per_sigma_s=ENHANCE_GRID_CELLS_PER_SIGMA,
                                       cells_per_sigma_r=ENHANCE_GRID_CELLS_PER_SIGMA)
@@ -529,7 +545,8 @@ class RecoveredRight:
 
 def _psnr_8bit(estimate_at_samples: np.ndarray, values: np.ndarray) -> float:
     diff = estimate_at_samples.astype(np.float64) - values.astype(np.float64)
-    mse = float(np.mean(diff * diff)) if diff.size else math.nan
+    # NaN: channels a mosaic sample does not carry.
+    mse = float(np.nanmean(diff * diff)) if diff.size else math.nan
     if math.isnan(mse):
         return math.nan
     return math.inf if mse == 0.0 else 10.0 * math.log10(255.0 ** 2 / mse)
@@ -548,8 +565,9 @@ def check_recovery_inputs(left: np.ndarray, disparity: np.ndarray, samples: Samp
     if (h, w) != (samples.height, samples.width):
         raise MismatchError(f"left image is {w}x{h} but the samples are of a "
                             f"{samples.width}x{samples.height} image")
-    if c != samples.channels:
-        raise MismatchError(f"left image has {c} channel(s) but the samples have {samples.channels}")
+    if c != samples.colour_channels:
+        raise MismatchError(f"left image has {c} channel(s) but the samples have {samples.channels}"
+                            + (" (a raw mosaic: compared with an RGB left image)" if samples.mosaic else ""))
     if left.dtype != samples.dtype:
         raise MismatchError(f"left image is {left.dtype} but the samples are {samples.dtype}")
     if np.shape(disparity) != (h, w):
@@ -644,16 +662,18 @@ def _reinsert(image: np.ndarray, rows: np.ndarray, cols: np.ndarray, samples: Sa
     A lossy codec gives no such bound: the estimate, already pulled towards the decoded
     values by the enhancement, is kept.
     """
+    # A mosaic sample is its pixel's value in one colour: only that channel is written.
+    channel = samples.sample_colours() if samples.mosaic else slice(None)
     if samples.exact:
-        image[rows, cols] = samples.values_rgb()
+        image[rows, cols, channel] = samples.values_rgb()[:, 0] if samples.mosaic else samples.values_rgb()
         return
     if samples.lossy:
         return
     full = 8 * samples.values.dtype.itemsize
     mask = (1 << (full - samples.value_bits)) - 1
-    values = samples.values_rgb()
+    values = samples.values_rgb()[:, 0] if samples.mosaic else samples.values_rgb()
     low = values & ~values.dtype.type(mask)
-    image[rows, cols] = np.clip(image[rows, cols], low, low | values.dtype.type(mask))
+    image[rows, cols, channel] = np.clip(image[rows, cols, channel], low, low | values.dtype.type(mask))
 
 
 def recover_right(left: np.ndarray, disparity: np.ndarray, samples: SampleSet, *, enhance: bool = True,

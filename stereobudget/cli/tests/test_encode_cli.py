@@ -211,7 +211,8 @@ def _run_main_without_numpy(args, *, stdin: bytes | None = None) -> subprocess.C
 
 
 @pytest.mark.parametrize("pix_fmt,channels,dtype", [
-    ("rgb24", 3, np.uint8), ("bgr24", 3, np.uint8), ("gray8", 1, np.uint8), ("gray16le", 1, np.uint16)])
+    ("rgb24", 3, np.uint8), ("bgr24", 3, np.uint8), ("gray8", 1, np.uint8), ("gray16le", 1, np.uint16),
+    ("bayer_grbg8", 1, np.uint8), ("bayer_gbrg16le", 1, np.uint16)])
 def test_raw_grid_encoding_and_info_import_no_numpy(tmp_path, pix_fmt, channels, dtype):
     frame = rgb_image(h=37, w=45, dtype=dtype, seed=3)[:, :, :channels]
     raw = frame.astype(frame.dtype.newbyteorder("<")).tobytes()

@@ -339,7 +339,7 @@ def test_load_missing_file(tmp_path):
 # --- raw frames on a grid: the numpy-free path (stereobudget.io._rawgrid) ---------------------
 
 _RAW_FORMATS = {"gray8": (1, np.uint8), "rgb24": (3, np.uint8), "bgr24": (3, np.uint8),
-                "gray16le": (1, np.uint16)}
+                "gray16le": (1, np.uint16), "bayer_rggb8": (1, np.uint8), "bayer_gbrg16le": (1, np.uint16)}
 
 
 @st.composite

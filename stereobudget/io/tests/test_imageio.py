@@ -186,7 +186,8 @@ def test_raw_formats():
     image, order = read_raw(g16.astype("<u2").tobytes(), width=6, height=4, pix_fmt="gray16le")
     assert order == "gray" and image.dtype == np.uint16
     np.testing.assert_array_equal(image, g16)
-    assert set(RAW_PIXEL_FORMATS) == {"gray8", "rgb24", "bgr24", "gray16le"}
+    assert set(RAW_PIXEL_FORMATS) == {"gray8", "rgb24", "bgr24", "gray16le"} | {
+        f"bayer_{p}{bits}" for p in ("rggb", "bggr", "grbg", "gbrg") for bits in ("8", "16le")}
 
 
 @pytest.mark.parametrize("nbytes,what", [(6 * 4 * 3 - 1, "less than one frame"),
