@@ -7,7 +7,7 @@ import pytest
 
 from stereobudget.cost import pixel_cost
 from stereobudget.decoding import decode
-from stereobudget.decoding._decoders import _band_samples
+from stereobudget.decoding._tiling import _band_samples
 from stereobudget.errors import MismatchError, OptionError
 from stereobudget.io import encode_image, read_samples, write_samples
 from stereobudget.io._mosaic import mosaic_image, rgb_with_gaps
