@@ -32,7 +32,7 @@ def hybrid_weight(stride: float) -> float:
 
     The sweep in docs/results.md (strides 3 and 5, weights 0.3-0.9) has its optimum at
     0.7 for both: the interpolated DSI is blurred in proportion to the stride, but so is
-    the Sparse fill (sigma_s = 3 stride), so their relative reliability does not move
+    the Sparse fill (sigma_s = 1.5 stride), so their relative reliability does not move
     with the sampling rate and one weight serves all strides.
     """
     return 0.7

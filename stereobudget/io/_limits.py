@@ -105,7 +105,7 @@ def _bilateral_grid_bytes(height: int, width: int, num_disp: int, *, stride: flo
 
 
 def estimate_decode_memory(height: int, width: int, num_disp: int, method: str, *,
-                           stride_x: int = 5, stride_y: int = 5, sigma_s_per_stride: float = 2.0,
+                           stride_x: int = 5, stride_y: int = 5, sigma_s_per_stride: float = 1.5,
                            sigma_r: float = 15.0, cells_per_sigma_s: float = 1.0,
                            cells_per_sigma_r: float = 1.0) -> int:
     """Conservative estimate of the peak memory of :func:`stereobudget.decoding.decode`, in bytes.
@@ -289,7 +289,7 @@ def default_memory_limit() -> int | None:
 
 def check_decode_memory(height: int, width: int, num_disp: int, method: str, *,
                         max_memory: int | None = None, stride_x: int = 5, stride_y: int = 5,
-                        sigma_s_per_stride: float = 2.0, sigma_r: float = 15.0,
+                        sigma_s_per_stride: float = 1.5, sigma_r: float = 15.0,
                         cells_per_sigma_s: float = 1.0, cells_per_sigma_r: float = 1.0) -> int:
     """Raise :class:`~stereobudget.errors.MemoryLimitError` when a decode would exceed the limit.
 
