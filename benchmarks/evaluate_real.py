@@ -12,7 +12,8 @@ ground truth.  The columns:
 * ``AVIF+SGBM``, ``WebP+SGBM``, ``JXL+SGBM``: the right image coded to at most the bytes
   of our stride-5 sample file (AVIF speed 6), decoded, then SGBM;
 * ``full``, ``hybrid@3``, ``sparse@5``, ``hybrid@5``...: ``stereobudget.decode`` of a
-  grid of that stride (``full`` = stride 1) with the default parameters.
+  grid of that stride (``full`` = stride 1) with the default parameters; ``downsample@5``
+  sends 5x5 block means instead (the same bytes as a stride-5 grid).
 
 Results are kept in a JSON cache so that a change to one decoder reruns one column.
 
@@ -137,7 +138,9 @@ def coded_right(codec, right, budget):
 def ours(left, right, max_disp, column, params):
     method, _, stride = column.partition("@")
     stride = int(stride or 1)
-    samples = encode_image(right, pattern=SamplingPattern("grid", stride, stride))
+    # Downsample sends block means (its own pattern); the other methods read a grid.
+    kind = "downsample" if method == "downsample" else "grid"
+    samples = encode_image(right, pattern=SamplingPattern(kind, stride, stride))
     result = stereobudget.decode(left, samples, max_disp=max_disp, params=params,
                                  method=None if method == "full" else method)
     return result.disparity

@@ -82,10 +82,10 @@ class DecoderParams:
         the low-passed I1 and the low-passed interpolation of the samples, summed along
         the semi-global paths (P2 = ``hybrid_sgm_p2``), checked left against right on the
         diagonal, rejected pixels filled from their row.  On the 23 real pairs
-        (``benchmarks/evaluate_real.py``) 26.6 % bad pixels at stride 5 and 19.9 % at
-        stride 3, against 31.5 % and 28.6 % for ``"tree"`` (the paper's route: the Sparse
+        (``benchmarks/evaluate_real.py``) 25.8 % bad pixels at stride 5 and 19.6 % at
+        stride 3, against 31.2 % at stride 5 for ``"tree"`` (the paper's route: the Sparse
         fill mixed with absolute differences of the low-passed pair, Yang's tree, check
-        and refinement), which stays better on the four paper scenes (6.6 % against 8.0 %
+        and refinement), which stays better on the four paper scenes (6.1 % against 7.9 %
         at stride 5).  ``"semiglobal"``: the paper's mixed cost on the semi-global paths
         (28.3 % / 8.4 %).
     full_cost : {"census", "ad"}
