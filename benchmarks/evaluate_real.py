@@ -104,35 +104,40 @@ def sample_file_bytes(right, stride):
     return len(write_samples(samples))
 
 
-def _best_under(encode, decode, budget, qualities):
-    """Decoded image of the highest quality whose code fits ``budget`` bytes (bisection)."""
-    lo, hi, best = 0, len(qualities) - 1, None
+def _codec(codec):
+    """(encode(image, quality) -> bytes, decode(bytes) -> image) of a whole-image codec."""
+    import imagecodecs
+    if codec == "AVIF":
+        return (lambda image, q: imagecodecs.avif_encode(image, level=q, speed=6)), imagecodecs.avif_decode
+    if codec == "WebP":
+        # This imagecodecs build codes losslessly unless told otherwise.
+        return (lambda image, q: imagecodecs.webp_encode(image, level=q, lossless=False)), imagecodecs.webp_decode
+    if codec == "JXL":
+        return (lambda image, q: imagecodecs.jpegxl_encode(image, level=q, effort=7)), imagecodecs.jpegxl_decode
+    raise ValueError(codec)
+
+
+def best_quality_under(codec, right, budget):
+    """(code, quality): the highest quality 0..100 whose code fits ``budget`` bytes, else quality 0.
+
+    The size grows with the quality, so bisection finds it in about seven encodes.
+    """
+    encode, _ = _codec(codec)
+    lo, hi, best = 0, 100, None
     while lo <= hi:
         mid = (lo + hi) // 2
-        data = encode(qualities[mid])
+        data = encode(right, mid)
         if len(data) <= budget:
-            best, lo = (data, qualities[mid]), mid + 1
+            best, lo = (data, mid), mid + 1
         else:
             hi = mid - 1
-    if best is None:
-        best = (encode(qualities[0]), qualities[0])
-    return decode(best[0]), len(best[0])
+    return best if best is not None else (encode(right, 0), 0)
 
 
 def coded_right(codec, right, budget):
-    import imagecodecs
-    if codec == "AVIF":
-        return _best_under(lambda q: imagecodecs.avif_encode(right, level=q, speed=6), imagecodecs.avif_decode,
-                           budget, list(range(0, 101)))
-    if codec == "WebP":
-        # This imagecodecs build codes losslessly unless told otherwise.
-        return _best_under(lambda q: imagecodecs.webp_encode(right, level=q, lossless=False), imagecodecs.webp_decode,
-                           budget, list(range(0, 101)))
-    if codec == "JXL":
-        # Distance falls as quality rises; bisection wants quality ascending.
-        return _best_under(lambda q: imagecodecs.jpegxl_encode(right, level=q, effort=7), imagecodecs.jpegxl_decode,
-                           budget, list(range(0, 101)))
-    raise ValueError(codec)
+    """(decoded image, bytes) of ``right`` through ``codec`` at the best quality within ``budget``."""
+    data, _ = best_quality_under(codec, right, budget)
+    return _codec(codec)[1](data), len(data)
 
 
 def ours(left, right, max_disp, column, params):
