@@ -6,7 +6,7 @@ and the camera's encoder CPU time (the fastest of three runs, one thread):
 
 * ``raw s5`` -- the budget itself; ``raw s3``, ``lossless s4`` (8 and 7 bits), ``jxl s3
   q90`` -- denser grids at their own bytes;
-* ``size`` -- ``sb-encode --size BUDGET`` (raw, or lossless keeping 8 to 6 bits: the
+* ``size`` -- ``sb-encode --size BUDGET`` (raw, or lossless keeping 8 to 5 bits: the
   densest that fits);
 * ``size jxl`` -- ``sb-encode --size BUDGET --codec jxl`` (lossy allowed);
 * ``AVIF+SGBM`` -- AVIF (speed 6) of the whole right image at the highest quality

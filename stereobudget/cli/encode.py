@@ -200,7 +200,7 @@ def _show_info(path, *, verify: bool) -> None:
               help="Quality of --codec webp / jxl.  [default: 90; with --size the best that fits]")
 @click.option("--size", "size_bytes", metavar="BYTES", default=None, type=str,
               help="Byte budget of the file (e.g. 20000): the densest grid stride and coding "
-                   "that fit (raw, or lossless keeping 8 to 6 bits, unless --codec / --bits say "
+                   "that fit (raw, or lossless keeping 8 to 5 bits, unless --codec / --bits say "
                    "otherwise); never exceeded.")
 @click.option("--epsilon", "size_fraction", type=click.FloatRange(0, 1, min_open=True), default=None,
               help="Byte budget as a fraction of the raw image bytes (W x H x channels x bytes).")

@@ -10,7 +10,7 @@ from hypothesis import strategies as st
 
 from stereobudget.errors import CorruptHeaderError, CorruptPayloadError, OptionError, UnsupportedVersionError
 from stereobudget.io import _codecs, _samples as container
-from stereobudget.io import encode_image, fit_budget, probe, read_samples, write_samples
+from stereobudget.io import BUDGET_DROPPED_BITS, encode_image, fit_budget, probe, read_samples, write_samples
 from stereobudget.sampling import SamplingPattern
 
 HEADER = container.HEADER_SIZE_V1_0
@@ -299,13 +299,14 @@ def test_the_budget_is_never_exceeded(budget, codec, bits):
     s = ss.pattern.stride_x
     if s > 1 and codec is None:
         # Densest: the next denser grid fits neither raw nor lossless (nor, without --bits,
-        # lossless with up to two low bits dropped).
+        # lossless with up to BUDGET_DROPPED_BITS low bits dropped, except at stride 1).
         denser = encode_image(img, pattern=grid(s - 1))
-        tries = [("raw", bits), ("lossless", bits)] if bits else [("raw", None), ("lossless", 8), ("lossless", 7),
-                                                                   ("lossless", 6)]
+        dropped = 0 if s - 1 == 1 else BUDGET_DROPPED_BITS
+        tries = ([("raw", bits), ("lossless", bits)] if bits else
+                 [("raw", None)] + [("lossless", b) for b in range(8, 8 - dropped - 1, -1)])
         assert all(len(write_samples(denser, codec=c, value_bits=b)) > budget for c, b in tries)
     if bits is None and codec is None:
-        assert coding["value_bits"] >= 6
+        assert coding["value_bits"] >= 8 - BUDGET_DROPPED_BITS
 
 
 def test_the_budget_prefers_lossless_density_to_raw():
