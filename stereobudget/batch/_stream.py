@@ -99,11 +99,13 @@ def encode_stream(sources: Iterable[str], output: str, *, pattern, raw_size: tup
     first_source = display_name(sources[0]) if sources else "-"
 
     def frames():
+        previous = None   # a budget search starts at the previous frame's choice
         for index, (name, frame) in enumerate(_encode_inputs(sources, raw_size=raw_size, pix_fmt=pix_fmt)):
             target = _frame_output(output, source=sources[min(index, len(sources) - 1)] if raw_size is None
                                    else first_source, index=index, option="-o")
             data, report = encode_frame(frame, name=name, output=target, pattern=pattern, raw_size=raw_size,
-                                        pix_fmt=pix_fmt, **(coding or {}))
+                                        pix_fmt=pix_fmt, budget_hint=previous, **(coding or {}))
+            previous = report
             yield index, target, data, report
 
     def reported(index, report):

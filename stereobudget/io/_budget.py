@@ -32,7 +32,7 @@ def grid(stride: int) -> SamplingPattern:
 
 
 def fit_budget(image, *, budget: int, codec: str | None = None, value_bits: int | None = None,
-               quality: int | None = None, channel_order: str | None = None):
+               quality: int | None = None, channel_order: str | None = None, hint: dict | None = None):
     """The densest square grid and coding whose ``.sbs`` file has at most ``budget`` bytes.
 
     Parameters
@@ -51,6 +51,11 @@ def fit_budget(image, *, budget: int, codec: str | None = None, value_bits: int 
         codec without ``quality`` tries :data:`BUDGET_QUALITIES`.
     channel_order : str, optional
         As :func:`stereobudget.io.encode_image`.
+    hint : dict, optional
+        The choice for a similar image (the previous frame of a stream): ``stride`` and the
+        ``coding`` this function returned.  The search starts there, which spares most of
+        its encodes when the choice holds; the result is the one the full search finds
+        (file sizes growing with density and fidelity, as the search assumes anyway).
 
     Returns
     -------
@@ -102,24 +107,20 @@ def fit_budget(image, *, budget: int, codec: str | None = None, value_bits: int 
     # The sparsest grid is where the search starts: the densest stride whose raw file
     # fits (its size is known without encoding), or the sparsest stride tried.
     start = next((s for s in range(1, MAX_BUDGET_STRIDE + 1) if raw_size(s, bits) <= budget), None)
-    best = None
-    if start is not None:
-        sample_set = encode_image(image, pattern=grid(start), channel_order=channel_order)
-        best = (sample_set,) + _coded_file(sample_set, codec="raw", value_bits=value_bits, quality=None)
-    coded = [c for c in codings if c[0] != "raw"]
-    # Then denser grids while a coding fits.  At each stride the leanest coding is tried
-    # first, then more faithful ones while they fit: a file grows with the stride's
-    # density and with fidelity, so the first stride where even the leanest coding is
-    # over budget ends the search (every candidate is measured, never estimated).
-    for stride in range((start or MAX_BUDGET_STRIDE + 1) - 1, 0, -1):
-        sample_set = encode_image(image, pattern=grid(stride), channel_order=channel_order)
+    coded = [c for c in codings if c[0] != "raw"][::-1]   # leanest first
+
+    def allowed(stride):
+        if stride == 1 and value_bits is None:
+            # The full pair is matched by a census of the whole right image, which coarse
+            # values break (15 % budget: Vintage 37.1 % bad at 5 bits against 24.0 % at
+            # stride 2 with 8); dropped bits pay only on a sparse grid.
+            return [c for c in coded if c[0] in LOSSY_CODECS or c[1] == bits]
+        return coded
+
+    def most_faithful(sample_set, candidates):
+        """The last of ``candidates`` (in order of growing size) that fits, walking while they fit."""
         fitting = None
-        for name, b, q in reversed(coded):
-            if stride == 1 and value_bits is None and b < bits and name not in LOSSY_CODECS:
-                # The full pair is matched by a census of the whole right image, which coarse
-                # values break (15 % budget: Vintage 37.1 % bad at 5 bits against 24.0 % at
-                # stride 2 with 8); dropped bits pay only on a sparse grid.
-                continue
+        for name, b, q in candidates:
             try:
                 found = _coded_file(sample_set, codec=name, value_bits=b, quality=q)
             except OptionError:
@@ -127,11 +128,64 @@ def fit_budget(image, *, budget: int, codec: str | None = None, value_bits: int 
             if len(found[0]) > budget:
                 break
             fitting = (sample_set,) + found
-        if fitting is None:
-            break
-        best = fitting
+        return fitting
+
+    def densest_from(stride, best):
+        # Denser grids while a coding fits.  At each stride the leanest coding is tried
+        # first, then more faithful ones while they fit: a file grows with the stride's
+        # density and with fidelity, so the first stride where even the leanest coding is
+        # over budget ends the search (every candidate is measured, never estimated).
+        for stride in range(stride, 0, -1):
+            fitting = most_faithful(encode_image(image, pattern=grid(stride), channel_order=channel_order),
+                                    allowed(stride))
+            if fitting is None:
+                break
+            best = fitting
+        return best
+
+    sparsest = (start or MAX_BUDGET_STRIDE + 1) - 1
+
+    def from_hint():
+        """The most faithful coding that fits at the hinted stride, or None (then search in full).
+
+        Only a hint the full search would reach is used: a coded stride no sparser than
+        the search's first, and a coding the search tries.  From the hinted coding the walk
+        goes up in fidelity while codings fit, or down until one does.
+        """
+        if not hint or not 1 <= int(hint.get("stride", 0)) <= sparsest:
+            return None
+        stride = int(hint["stride"])
+        coding = hint.get("coding") or {}
+        candidates = allowed(stride)
+        # A lossless coding is named by codec and bits; a lossy one also by its quality.
+        keys = [(n, b, q if n in LOSSY_CODECS else None) for n, b, q in candidates]
+        name = coding.get("codec")
+        key = (name, coding.get("value_bits"), coding.get("quality") if name in LOSSY_CODECS else None)
+        if key not in keys:
+            return None
+        at = keys.index(key)
+        sample_set = encode_image(image, pattern=grid(stride), channel_order=channel_order)
+        fitting = most_faithful(sample_set, candidates[at:at + 1])
+        if fitting is not None:
+            return most_faithful(sample_set, candidates[at + 1:]) or fitting
+        for lower in range(at - 1, -1, -1):
+            fitting = most_faithful(sample_set, candidates[lower:lower + 1])
+            if fitting is not None:
+                return fitting
+        return None
+
+    hinted = from_hint()
+    if hinted:
+        best = densest_from(hinted[0].pattern.stride_x - 1, hinted)
+    else:
+        best = None
+        if start is not None:
+            sample_set = encode_image(image, pattern=grid(start), channel_order=channel_order)
+            best = (sample_set,) + _coded_file(sample_set, codec="raw", value_bits=value_bits, quality=None)
+        best = densest_from(sparsest, best)
     if best is not None:
         sample_set, data, used, kept_bits, used_q = best
         return sample_set, data, {"codec": used, "value_bits": kept_bits, "quality": used_q}
     raise OptionError(f"no grid up to stride {MAX_BUDGET_STRIDE} fits in {budget} bytes for a "
                       f"{width}x{height} image (a file has an {HEADER_SIZE_V1_0}-byte header)")
+

@@ -826,13 +826,17 @@ def encode_file(source, output, *, pattern: SamplingPattern, raw_size: tuple[int
 def encode_frame(frame, *, name: str, output, pattern: SamplingPattern, raw_size: tuple[int, int] | None = None,
                  pix_fmt: str | None = None, codec: str = "raw", value_bits: int | None = None,
                  quality: int | None = None, size: int | None = None,
-                 size_fraction: float | None = None) -> tuple[bytes, EncodeReport]:
+                 size_fraction: float | None = None,
+                 budget_hint: EncodeReport | None = None) -> tuple[bytes, EncodeReport]:
     """The ``.sbs`` bytes of one frame already in memory, and their report.
 
     ``frame`` is the bytes of one headerless frame when ``raw_size`` is given, else an
     ``(image, channel_order)`` pair as :func:`stereobudget.io.read_image` returns; the
     other arguments are those of :func:`encode_file` (``output`` only names the report's
     destination).  A raw frame on a ``grid`` with the raw coding is packed without numpy.
+    ``budget_hint``, the report of the previous frame of a stream, starts the budget
+    search (``size`` / ``size_fraction``) at that frame's choice: the same file, fewer
+    trial encodes (:func:`stereobudget.io.fit_budget`).
     """
     if raw_size is not None:
         plain = codec == "raw" and value_bits is None and size is None and size_fraction is None
@@ -854,9 +858,13 @@ def encode_frame(frame, *, name: str, output, pattern: SamplingPattern, raw_size
                               "no offset")
         from ._budget import fit_budget
         try:
+            hint = None if budget_hint is None else {
+                "stride": budget_hint.stride_x,
+                "coding": {"codec": budget_hint.codec, "value_bits": budget_hint.value_bits,
+                           "quality": budget_hint.quality}}
             sample_set, data, coding = fit_budget(image, budget=size, codec=None if codec == "raw" else codec,
                                                   value_bits=value_bits, quality=quality,
-                                                  channel_order=channel_order)
+                                                  channel_order=channel_order, hint=hint)
         except OptionError as exc:
             raise OptionError(exc.message, path=exc.path or name) from None
         pattern = sample_set.pattern

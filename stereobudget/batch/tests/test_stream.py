@@ -112,3 +112,18 @@ def test_stream_errors_name_the_frame_and_keep_the_frames_before(frames, tmp_pat
         list(decode_stream(str(frames / "L" / "{index}.png"), str(cut), max_disp=16,
                            disparity=str(tmp_path / "b" / "{index}.pfm")))
     assert sorted(p.name for p in (tmp_path / "b").iterdir()) == ["0.pfm", "1.pfm"]
+
+
+def test_a_budget_stream_writes_what_one_budget_file_at_a_time_writes(frames):
+    # Each frame's search starts at the previous frame's choice; the files must not change.
+    coding = {"codec": "raw", "size": 900}
+    singles = []
+    for index in range(3):
+        out = frames / f"budget{index}.sbs"
+        encode_file(frames / f"r{index}.png", out, pattern=SamplingPattern("grid", 1, 1), overwrite=True, **coding)
+        singles.append(out.read_bytes())
+    stream = frames / "budget.sbs"
+    items = list(encode_stream([str(frames / "rights.raw")], str(stream), pattern=SamplingPattern("grid", 1, 1),
+                               raw_size=(96, 64), pix_fmt="rgb24", overwrite=True, coding=coding))
+    assert list(sample_frames(stream)) == singles
+    assert all(item["file_size"] <= 900 for item in items)

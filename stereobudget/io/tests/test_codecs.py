@@ -309,6 +309,22 @@ def test_the_budget_is_never_exceeded(budget, codec, bits):
         assert coding["value_bits"] >= 8 - BUDGET_DROPPED_BITS
 
 
+@pytest.mark.parametrize("codec", [None, "deflate", "webp"])
+def test_a_hinted_budget_search_finds_what_the_full_search_finds(codec):
+    images = [smooth_image(h=90, w=120, seed=seed) for seed in range(3)]
+    images.append(np.random.default_rng(5).integers(0, 256, (90, 120, 3), dtype=np.uint8))  # incompressible
+    for budget in (700, 1500, 3200, 7000):
+        choices = []
+        for image in images:
+            ss, data, coding = fit_budget(image, budget=budget, codec=codec)
+            choices.append(({"stride": ss.pattern.stride_x, "coding": coding}, data))
+        # Every image's own choice, another image's, and nonsense must all lead to the same file.
+        hints = [hint for hint, _ in choices] + [{"stride": 1, "coding": {"codec": "raw"}}, {"stride": 99}, {}]
+        for image, (_, data) in zip(images, choices):
+            for hint in hints:
+                assert fit_budget(image, budget=budget, codec=codec, hint=hint)[1] == data
+
+
 def test_the_budget_prefers_lossless_density_to_raw():
     img = smooth_image(h=120, w=160)
     raw5 = len(write_samples(encode_image(img, pattern=grid(5))))
