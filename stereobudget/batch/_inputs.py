@@ -157,13 +157,6 @@ def expand_template(template: str, source: str, *, option: str = "output", index
     return "".join(pieces)
 
 
-def output_for(template: str | None, source: str, *, option: str) -> str | None:
-    """``template`` expanded for ``source`` (None stays None, a plain name stays as it is)."""
-    if template is None:
-        return None
-    return expand_template(template, source, option=option)
-
-
 def check_distinct_outputs(jobs, *, key: Callable) -> None:
     """Refuse a batch in which two jobs would write the same file.
 
@@ -302,5 +295,5 @@ def read_manifest(path: str) -> list[Pair]:
 
 
 __all__ = ["IMAGE_EXTENSIONS", "SAMPLE_EXTENSIONS", "TEMPLATE_FIELDS", "expand_inputs",
-           "has_template", "template_fields", "uses_field", "expand_template", "output_for",
+           "has_template", "template_fields", "uses_field", "expand_template",
            "check_distinct_outputs", "Pair", "pair_by_stem", "read_manifest"]

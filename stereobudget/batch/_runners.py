@@ -239,12 +239,4 @@ def run_jobs(jobs: Iterable, fn: Callable, *, workers: int | None = None, schedu
         yield from report(_run_local_pool(jobs, fn, min(workers, len(jobs)), threads))
 
 
-def count_statuses(results: Iterable[dict]) -> dict:
-    """``{"ok": n, "skipped": n, "failed": n}`` of a list of result dicts."""
-    counts = {"ok": 0, "skipped": 0, "failed": 0}
-    for item in results:
-        counts[item.get("status", "failed")] = counts.get(item.get("status", "failed"), 0) + 1
-    return counts
-
-
-__all__ = ["default_jobs", "run_jobs", "count_statuses"]
+__all__ = ["default_jobs", "run_jobs"]
