@@ -28,8 +28,9 @@ from typing import Iterable, Iterator
 from ..errors import MismatchError, OptionError
 from ..io._atomic import STDIO, atomic_write, display_name, write_output_bytes
 from ..io._stream import frame_label, raw_frames, sample_frames
-from ._batch import (IMAGE_EXTENSIONS, DecodeJob, _prepare_outputs, check_job_outputs, expand_inputs,
-                     expand_template, uses_field)
+from ._inputs import IMAGE_EXTENSIONS, expand_inputs, expand_template, uses_field
+from ._jobs import DecodeJob
+from ._outputs import _prepare_outputs, check_job_outputs
 
 log = logging.getLogger("stereobudget")
 
@@ -203,7 +204,7 @@ def decode_stream(left: str, samples: str, *, disparity: str | None = None, prev
         The first problem, naming its frame; earlier frames have been written.
     """
     from ..io._samples import read_samples
-    from ._batch import decode_arrays
+    from ._jobs import decode_arrays
 
     templates = {"disparity": disparity, "preview": preview, "right": right}
     lefts = _LeftFrames(left)

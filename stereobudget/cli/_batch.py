@@ -102,8 +102,9 @@ def plan_encode(images, output: str, *, pattern, raw_size, pix_fmt, overwrite: b
         Several inputs and an ``-o`` without a template, ``-`` among several inputs,
         two inputs that would write the same file.
     """
-    from stereobudget.batch._batch import (IMAGE_EXTENSIONS, EncodeJob, check_distinct_outputs, expand_inputs,
-                                    expand_template, has_template)
+    from stereobudget.batch._inputs import (IMAGE_EXTENSIONS, check_distinct_outputs, expand_inputs,
+                                            expand_template, has_template)
+    from stereobudget.batch._jobs import EncodeJob
 
     templated = has_template(output, "-o")
     inputs = expand_inputs(images, extensions=None if raw_size is not None else IMAGE_EXTENSIONS,

@@ -52,8 +52,8 @@ def report_warnings(summary: dict, *, label: str | None = None) -> None:
 
 def _pairs_from_arguments(inputs, left_dir, samples_dir, manifest):
     """The (left, samples) pairs and whether they came from a multi-file source."""
-    from stereobudget.batch._batch import (IMAGE_EXTENSIONS, SAMPLE_EXTENSIONS, Pair, expand_inputs,
-                                    pair_by_stem, read_manifest)
+    from stereobudget.batch._inputs import (IMAGE_EXTENSIONS, SAMPLE_EXTENSIONS, Pair, expand_inputs,
+                                            pair_by_stem, read_manifest)
 
     sources = sum(x for x in (bool(inputs), left_dir is not None or samples_dir is not None,
                               manifest is not None))

@@ -98,7 +98,7 @@ def _stream_inputs(images, output: str, *, raw_size, pix_fmt) -> list[str] | Non
     A stream: a raw input from standard input (a camera pipe), a raw file longer than
     one frame, an ``-o`` naming frames by ``{index}``, or several images to ``-o -``.
     """
-    from stereobudget.batch._batch import IMAGE_EXTENSIONS, expand_inputs, uses_field
+    from stereobudget.batch._inputs import IMAGE_EXTENSIONS, expand_inputs, uses_field
 
     per_frame = uses_field(output, "index", "-o")
     if raw_size is not None:

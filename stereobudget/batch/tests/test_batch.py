@@ -16,7 +16,7 @@ import numpy as np
 import pytest
 from click.testing import CliRunner
 
-from stereobudget.batch import _batch as batch
+from stereobudget import batch
 from stereobudget.cli.decode import decode_command
 from stereobudget.io import encode_image, load_samples, save_samples
 from stereobudget.io import read_disparity

@@ -1,0 +1,107 @@
+"""A job's outputs, checked before any work: up to date, folders created, formats known.
+
+This module imports neither numba nor OpenCV: the camera-side ``sb-encode`` uses it.
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+from typing import TYPE_CHECKING, Iterable
+
+from ..io._atomic import STDIO, check_output_path
+from ..errors import OptionError, OutputError
+
+if TYPE_CHECKING:
+    from ._jobs import DecodeJob
+
+
+def _mtime_ns(path: str) -> int | None:
+    try:
+        return os.stat(path).st_mtime_ns
+    except OSError:
+        return None
+
+
+def outputs_up_to_date(outputs: Iterable[str], inputs: Iterable[str]) -> bool:
+    """True when every output exists and is at least as new as every input (``make``'s rule)."""
+    outputs = [o for o in outputs if o is not None]
+    if not outputs or any(o == STDIO for o in outputs):
+        return False
+    input_times = [_mtime_ns(i) for i in inputs if i is not None and i != STDIO]
+    if any(t is None for t in input_times):
+        return False             # a missing input: let the job report it
+    newest_input = max(input_times, default=0)
+    for out in outputs:
+        t = _mtime_ns(out)
+        if t is None or t < newest_input:
+            return False
+    return True
+
+
+def _prepare_outputs(outputs: list[str], inputs: list[str], *, overwrite: bool, make_dirs: bool,
+                     replace_existing: bool | None = None) -> bool:
+    """Check the outputs of one job; return the ``overwrite`` flag to write them with.
+
+    In a batch (``make_dirs``) missing folders are created, and a stale output is
+    replaced (the caller has already skipped up-to-date jobs); ``replace_existing=False``
+    creates the folders but still refuses an existing output without ``overwrite``.
+    """
+    replace = overwrite
+    replace_existing = make_dirs if replace_existing is None else replace_existing
+    for out in outputs:
+        if out is None or out == STDIO:
+            continue
+        if make_dirs:
+            parent = Path(out).parent
+            if not parent.is_dir():
+                try:
+                    parent.mkdir(parents=True, exist_ok=True)
+                except OSError as exc:
+                    raise OutputError(f"cannot create the folder {str(parent)!r}: {exc.strerror or exc}",
+                                      path=out) from None
+            if replace_existing and os.path.exists(out):
+                replace = True      # stale (or partner of a missing output): redo as make would
+    for out in outputs:
+        if out is not None:
+            check_output_path(out, inputs, replace)
+    return replace
+
+
+def _check_output_formats(job: DecodeJob) -> None:
+    """Refuse unknown output extensions before any work is done."""
+    from ..io._disparity import DISPARITY_EXTENSIONS
+
+    def ext(path):
+        return Path(path).suffix.lower()
+
+    if sum(path == STDIO for path in job.outputs.values()) > 1:
+        raise OptionError("only one output can go to standard output ('-')")
+    if job.disparity is not None:
+        if job.disparity == STDIO:
+            pass   # the stream's format is job.disparity_format (PFM unless png)
+        elif ext(job.disparity) not in DISPARITY_EXTENSIONS:
+            raise OutputError(f"unknown disparity format {ext(job.disparity) or '(no extension)'!r}; "
+                              f"use one of {', '.join(DISPARITY_EXTENSIONS)}", path=job.disparity)
+    if job.preview is not None and job.preview != STDIO and ext(job.preview) != ".png":
+        raise OutputError("a disparity preview is written as PNG; use a .png file name (or - for stdout)",
+                          path=job.preview)
+    if job.right is not None and job.right != STDIO and ext(job.right) not in (".png", ".tif", ".tiff"):
+        raise OutputError(f"unsupported image extension {ext(job.right) or '(none)'!r}; "
+                          "use .png, .tif or .tiff", path=job.right)
+
+
+def check_job_outputs(job: DecodeJob) -> None:
+    """Refuse a job with no output, two outputs on one file, or an unknown output format."""
+    outputs = job.outputs
+    if not outputs:
+        raise OptionError("nothing to write: give --disparity, --preview and/or --right")
+    seen = {}
+    for kind, path in outputs.items():
+        if path != STDIO and path in seen:
+            raise OptionError(f"--{seen[path]} and --{kind} name the same file", path=path)
+        seen[path] = kind
+    _check_output_formats(job)
+
+
+__all__ = ["outputs_up_to_date", "check_job_outputs"]
