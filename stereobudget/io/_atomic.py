@@ -34,17 +34,28 @@ def redeliver_swallowed_interrupts(signum: int) -> None:
 
     Installs a :data:`sys.unraisablehook`: a ``KeyboardInterrupt`` raised where it cannot
     propagate (a ctypes callback, a finaliser) is not printed; ``signum``'s Python handler
-    is run again in the main thread 20 ms later, by then normally outside the callback.
+    is run again in the main thread 20 ms later, by then normally outside the callback: as a
+    real signal to the main thread where the platform has one (so that a main thread
+    blocked in a system call wakes up), else as a simulated one.
     Other unraisable exceptions go to the previous hook.  For processes whose handler for
     ``signum`` raises ``KeyboardInterrupt`` (the ``sb-*`` commands, batch workers).
     """
     import _thread
+    import signal
 
     previous = sys.unraisablehook
 
+    def resend():
+        if hasattr(signal, "pthread_kill"):
+            # _thread.interrupt_main only flags the handler: a main thread waiting in
+            # sleep() or on a queue would run it when the wait ends, seconds later.
+            signal.pthread_kill(threading.main_thread().ident, signum)
+        else:
+            _thread.interrupt_main(signum)
+
     def hook(unraisable):
         if unraisable.exc_type is not None and issubclass(unraisable.exc_type, KeyboardInterrupt):
-            timer = threading.Timer(0.02, _thread.interrupt_main, (signum,))
+            timer = threading.Timer(0.02, resend)
             timer.daemon = True
             for _ in range(8):
                 try:
