@@ -261,12 +261,17 @@ def read_input_bytes(path, *, error: type[StereoBudgetError], max_bytes: int | N
                     raise too_large(format_size(info.st_size))
                 return handle.read()
             return _read_capped(handle, limit, too_large)
-    except FileNotFoundError:
-        raise error("no such file", path=str(path)) from None
-    except IsADirectoryError:
-        raise error("is a directory, not a file", path=str(path)) from None
     except OSError as exc:
-        raise error(f"cannot read: {exc.strerror or exc}", path=str(path)) from None
+        raise reading_error(exc, error, str(path)) from None
+
+
+def reading_error(exc: OSError, error: type[StereoBudgetError], name: str) -> StereoBudgetError:
+    """The one-line ``error`` for an input that could not be opened or read."""
+    if isinstance(exc, FileNotFoundError):
+        return error("no such file", path=name)
+    if isinstance(exc, IsADirectoryError):
+        return error("is a directory, not a file", path=name)
+    return error(f"cannot read: {exc.strerror or exc}", path=name)
 
 
 def _read_capped(stream, limit: int, too_large) -> bytes:

@@ -20,7 +20,7 @@ import zlib
 from dataclasses import dataclass
 from pathlib import Path
 
-from ._atomic import STDIO, check_output_path, display_name, read_input_bytes, write_output_bytes
+from ._atomic import STDIO, check_output_path, display_name, read_input_bytes, reading_error, write_output_bytes
 from ..errors import (CorruptHeaderError, CorruptPayloadError, ImageReadError, NotASampleFileError, OptionError,
                      TruncatedFileError, UnsupportedVersionError)
 from ._limits import dimension_problem
@@ -722,12 +722,8 @@ def probe(source, *, verify_payload: bool = False, name: str | None = None) -> d
         with open(path, "rb") as handle:
             size = os.fstat(handle.fileno()).st_size
             head = handle.read(MAX_HEADER_LENGTH)
-    except FileNotFoundError:
-        raise NotASampleFileError("no such file", path=name) from None
-    except IsADirectoryError:
-        raise NotASampleFileError("is a directory, not a file", path=name) from None
     except OSError as exc:
-        raise NotASampleFileError(f"cannot read: {exc.strerror or exc}", path=name) from None
+        raise reading_error(exc, NotASampleFileError, name) from None
     return header_dict(_parse_header(memoryview(head), name, file_size=size))
 
 

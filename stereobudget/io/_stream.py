@@ -23,7 +23,7 @@ import sys
 from typing import BinaryIO, Iterator
 
 from ..errors import ImageReadError, NotASampleFileError, TruncatedFileError
-from ._atomic import display_name
+from ._atomic import display_name, reading_error
 
 #: Offsets of the fields that frame a ``.sbs`` file (docs/format.md).
 _HEADER_LENGTH_AT = 10
@@ -47,12 +47,8 @@ def _open_input(source, error: type) -> Iterator[BinaryIO]:
         return
     try:
         handle = open(source, "rb")
-    except FileNotFoundError:
-        raise error("no such file", path=name) from None
-    except IsADirectoryError:
-        raise error("is a directory, not a file", path=name) from None
     except OSError as exc:
-        raise error(f"cannot read: {exc.strerror or exc}", path=name) from None
+        raise reading_error(exc, error, name) from None
     with handle:
         yield handle
 
