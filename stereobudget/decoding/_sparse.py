@@ -7,7 +7,7 @@ from __future__ import annotations
 from ..aggregate import _tree as _tree
 from ..aggregate._refine import median_filter_disparity
 from ..cost._cost import sample_row_steps, to_gray
-from ..fill._bilateral import filled_sparse_dsi
+from ..fill._bilateral import FillScale, SparseCostTerms, filled_sparse_dsi
 from ..fill._lowpass import _sample_values_f32
 from ..io._limits import volume_layers
 from ..sampling._patterns import grid_shape
@@ -24,13 +24,15 @@ def sparse_fill_arguments(left_f, guide, samples, params):
         # Row neighbours of a grid are stride_x pixels apart: their difference is exact data.
         lattice = to_gray(values.reshape(grid_shape(samples.pattern, samples.height, samples.width) + (-1,)))
         steps = sample_row_steps(lattice).ravel()
-    return (left_f, guide, rows, cols, values), dict(
-        sigma_s=params.sigma_s_per_stride * sampling_stride(samples), sigma_r=params.sigma_r,
-        truncation=params.truncation, right_steps=steps, step_spacing=samples.pattern.stride_x,
-        step_weight=params.step_weight, step_truncation=params.step_truncation,
-        census_spacing=(samples.pattern.stride_x, samples.pattern.stride_y) if samples.pattern.is_regular_grid else None,
-        census_weight=params.sparse_census_weight,
-        cells_per_sigma_s=params.grid_cells_per_sigma_s, cells_per_sigma_r=params.grid_cells_per_sigma_r)
+    scale = FillScale(sigma_s=params.sigma_s_per_stride * sampling_stride(samples), sigma_r=params.sigma_r,
+                      cells_per_sigma_s=params.grid_cells_per_sigma_s,
+                      cells_per_sigma_r=params.grid_cells_per_sigma_r)
+    grid = samples.pattern.is_regular_grid
+    terms = SparseCostTerms(truncation=params.truncation, step_weight=params.step_weight,
+                            step_truncation=params.step_truncation, step_spacing=samples.pattern.stride_x,
+                            census_weight=params.sparse_census_weight,
+                            census_spacing=(samples.pattern.stride_x, samples.pattern.stride_y) if grid else None)
+    return (left_f, guide, rows, cols, values), dict(scale=scale, terms=terms, right_steps=steps)
 
 
 def sparse_filled_cost(left_f, guide, samples, *, min_disp, num_disp, params, layout=None):

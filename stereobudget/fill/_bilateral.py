@@ -25,7 +25,7 @@ filter.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import NamedTuple
 
 import numpy as np
@@ -75,6 +75,60 @@ def grid_geometry(height: int, width: int, guide_max: float, *, sigma_s: float, 
     gx = int(math.floor((width - 1) / cell_s)) + 2
     gz = int(math.floor(max(guide_max, 0.0) / cell_r)) + 2
     return GridGeometry(cell_s, cell_r, (gy, gx, gz), blur_s, blur_r)
+
+
+@dataclass(frozen=True)
+class FillScale:
+    """Scales of Eq. (3)'s normalised joint bilateral fill and of the grid that computes it.
+
+    Attributes
+    ----------
+    sigma_s : float
+        Spatial standard deviation in pixels (the paper: ``3 * stride``).
+    sigma_r : float
+        Range standard deviation in guide units (the paper: 20).
+    cells_per_sigma_s, cells_per_sigma_r : float
+        Grid cells per sigma (2 keeps the grid's error near 1 %).
+    """
+
+    sigma_s: float
+    sigma_r: float
+    cells_per_sigma_s: float = 2.0
+    cells_per_sigma_r: float = 2.0
+
+    def geometry(self, height: int, width: int, guide_max: float) -> GridGeometry:
+        """The :class:`GridGeometry` of a ``height`` x ``width`` guide whose largest value is ``guide_max``."""
+        return grid_geometry(height, width, guide_max, sigma_s=self.sigma_s, sigma_r=self.sigma_r,
+                             cells_per_sigma_s=self.cells_per_sigma_s, cells_per_sigma_r=self.cells_per_sigma_r)
+
+
+@dataclass(frozen=True)
+class SparseCostTerms:
+    """The terms of Eq. (2)'s cost at a sample (:func:`stereobudget.cost.sparse_pair_cost`).
+
+    Attributes
+    ----------
+    truncation : float
+        Truncation of the colour term (:func:`stereobudget.cost.pixel_cost`); every term is
+        brought to ``[0, truncation]``.
+    step_weight, step_truncation : float
+        Weight (0: off) and truncation (gray levels) of the step term, the gray difference
+        to the sample ``step_spacing`` pixels to the right.
+    step_spacing : int
+        Column spacing of the steps (the grid stride).
+    census_weight : float
+        Weight of the lattice census (0: off).
+    census_spacing : (int, int), optional
+        ``(stride_x, stride_y)`` of a regular sample grid whose samples arrive row by row;
+        ``None`` (not a regular grid) turns the lattice census off.
+    """
+
+    truncation: float
+    step_weight: float = 0.0
+    step_truncation: float = 5.0
+    step_spacing: int = 1
+    census_weight: float = 0.0
+    census_spacing: tuple[int, int] | None = None
 
 
 def _gaussian_kernel(std: float) -> np.ndarray:
@@ -692,9 +746,29 @@ class LeftPixels(NamedTuple):
     codes: np.ndarray   # uint8 (H, W), lattice census code
 
 
-def _splat_terms(*, truncation, step_spacing, step_weight, step_truncation, census_weight, geom) -> SplatTerms:
-    return SplatTerms(np.float32(truncation), int(step_spacing), np.float32(step_weight),
-                      np.float32(step_truncation), np.float32(census_weight), 1.0 / geom.cell_s, 1.0 / geom.cell_r)
+class LatticeRows(NamedTuple):
+    """Where the samples of a full lattice lie: sample ``r * n_cols + j`` is at
+    ``(sample_rows[r], offset_x + j * stride)``."""
+
+    sample_rows: np.ndarray  # int64 (rows,)
+    offset_x: int
+    stride: int
+    n_cols: int
+
+
+class LatticeGrids(NamedTuple):
+    """The grids the lattice splat adds into (float32, uninitialised until zeroed by parts)."""
+
+    values: np.ndarray              # (GY, GX, GZ, D): every layer's cost
+    band_weights: np.ndarray        # (GY, B, GZ, D): the left-border band's weights
+    base_weights: np.ndarray        # (GY, GX, GZ, n_base): mask weights per column residue
+    channel_of_residue: np.ndarray  # int64 (stride,): base channel of x % stride (-1: none)
+
+
+def _splat_terms(terms: SparseCostTerms, geom: GridGeometry) -> SplatTerms:
+    return SplatTerms(np.float32(terms.truncation), int(terms.step_spacing), np.float32(terms.step_weight),
+                      np.float32(terms.step_truncation), np.float32(terms.census_weight),
+                      1.0 / geom.cell_s, 1.0 / geom.cell_r)
 
 
 @njit(cache=True, parallel=True)
@@ -744,8 +818,7 @@ def _splat_sparse_dsi_split(rows, cols, samples, pixels, min_disp, terms, grid_v
 
 
 @njit(cache=True, inline="always")
-def _splat_lattice_rows(r_lo, r_hi, cell_lo, cell_hi, sample_rows, offset_x, stride, n_cols, samples, pixels,
-                        min_disp, terms, grid_val, band_w, base_w, channel_of_residue):
+def _splat_lattice_rows(r_lo, r_hi, cell_lo, cell_hi, lattice, samples, pixels, min_disp, terms, grids):
     """Splat sample rows ``[r_lo, r_hi)`` into the grids' cells whose y index lies in
     ``[cell_lo, cell_hi]``: every layer's cost into ``grid_val``, the band's weights into
     ``band_w`` and each left pixel's mask weight into its base channel of ``base_w``.
@@ -755,9 +828,12 @@ def _splat_lattice_rows(r_lo, r_hi, cell_lo, cell_hi, sample_rows, offset_x, str
     the same in all of them, so they are computed once per pixel, and the 8 cells it adds
     into stay in cache.  Base channel ``channel_of_residue[x % stride]`` holds the mask of
     the lattice columns congruent to x (-1: none).  Sample ``k = r * n_cols + j`` is at
-    column ``offset_x + j * stride``; ``min_disp >= 0``.  ``samples``, ``pixels``, ``terms``
-    as :func:`_splat_sparse_dsi_split`.
+    column ``offset_x + j * stride``; ``min_disp >= 0``.  ``lattice``: :class:`LatticeRows`,
+    ``grids``: :class:`LatticeGrids`; ``samples``, ``pixels``, ``terms`` as
+    :func:`_splat_sparse_dsi_split`.
     """
+    sample_rows, offset_x, stride, n_cols = lattice
+    grid_val, band_w, base_w, channel_of_residue = grids
     right_values, right_steps, right_codes = samples
     left, guide, left_codes = pixels
     truncation, step_spacing, step_weight, step_truncation, census_weight, inv_cs, inv_cr = terms
@@ -829,8 +905,7 @@ def _splat_lattice_rows(r_lo, r_hi, cell_lo, cell_hi, sample_rows, offset_x, str
 
 
 @njit(cache=True, parallel=True)
-def _splat_lattice(sample_rows, offset_x, stride, n_cols, samples, pixels, min_disp, terms,
-                   grid_val, band_w, base_w, channel_of_residue, part_rows, shared_cells, zero_cells):
+def _splat_lattice(lattice, samples, pixels, min_disp, terms, grids, part_rows, shared_cells, zero_cells):
     """All sample rows of a full lattice into the value, band and base-weight grids, the
     rows cut into parts ``[part_rows[p], part_rows[p + 1])``, one per thread; part ``p``
     shares the rows of cells up to ``shared_cells[p]`` with the part above (-1: none).
@@ -847,6 +922,7 @@ def _splat_lattice(sample_rows, offset_x, stride, n_cols, samples, pixels, min_d
     and none that another part's first loop writes (a separate pass of zeros over all
     three grids took 0.8 ms of a Teddy decode).
     """
+    grid_val, band_w, base_w, _ = grids
     gy_n = grid_val.shape[0]
     parts = part_rows.shape[0] - 1
     val_row = grid_val.size // gy_n
@@ -861,14 +937,12 @@ def _splat_lattice(sample_rows, offset_x, stride, n_cols, samples, pixels, min_d
         band_flat[lo * band_row:hi * band_row] = 0.0
         base_flat[lo * base_row:hi * base_row] = 0.0
         # Cells up to the last one the part above reaches (shared_cells[p]) wait for the second loop.
-        _splat_lattice_rows(part_rows[p], part_rows[p + 1], shared_cells[p] + 1, gy_n, sample_rows, offset_x,
-                            stride, n_cols, samples, pixels, min_disp, terms, grid_val, band_w, base_w,
-                            channel_of_residue)
+        _splat_lattice_rows(part_rows[p], part_rows[p + 1], shared_cells[p] + 1, gy_n, lattice, samples, pixels,
+                            min_disp, terms, grids)
     for p in prange(parts):
         if shared_cells[p] >= 0:
-            _splat_lattice_rows(part_rows[p], part_rows[p + 1], 0, shared_cells[p], sample_rows, offset_x, stride,
-                                n_cols, samples, pixels, min_disp, terms, grid_val, band_w, base_w,
-                                channel_of_residue)
+            _splat_lattice_rows(part_rows[p], part_rows[p + 1], 0, shared_cells[p], lattice, samples, pixels,
+                                min_disp, terms, grids)
 
 
 def _lattice_parts(sample_rows: np.ndarray, inv_cs: float, gy: int, parts: int) -> tuple:
@@ -922,9 +996,8 @@ def _lattice_stride(rows: np.ndarray, cols: np.ndarray, width: int) -> int:
     return stride
 
 
-def _lattice_sparse_dsi_grids(left, guide, rows, cols, right_values, right_steps, *, stride, geom, min_disp,
-                              num_disp, truncation, step_spacing, step_weight, step_truncation, right_codes,
-                              left_codes, census_weight):
+def _lattice_sparse_dsi_grids(left, guide, rows, cols, samples, left_codes, *, stride, geom, min_disp, num_disp,
+                              terms):
     h, w = guide.shape
     gy, gx, gz = geom.shape
     inv_cs = 1.0 / geom.cell_s
@@ -960,15 +1033,12 @@ def _lattice_sparse_dsi_grids(left, guide, rows, cols, right_values, right_steps
     channel_of_residue = np.full(stride, -1, np.int64)
     channel_of_residue[(offset_x + min_disp + np.arange(base_w.shape[3], dtype=np.int64)) % stride] = \
         np.arange(base_w.shape[3])
-    samples = RightSamples(np.ascontiguousarray(right_values, np.float32),
-                           np.ascontiguousarray(right_steps, np.float32), right_codes)
-    terms = _splat_terms(truncation=truncation, step_spacing=step_spacing, step_weight=step_weight,
-                         step_truncation=step_truncation, census_weight=census_weight, geom=geom)
-    _splat_lattice(sample_rows, offset_x, int(stride), n_cols, samples, LeftPixels(left, guide, left_codes),
-                   int(min_disp), terms, grid_val, band_w, base_w, channel_of_residue,
+    _splat_lattice(LatticeRows(sample_rows, offset_x, int(stride), n_cols), samples,
+                   LeftPixels(left, guide, left_codes), int(min_disp), _splat_terms(terms, geom),
+                   LatticeGrids(grid_val, band_w, base_w, channel_of_residue),
                    *_lattice_parts(sample_rows, inv_cs, gy, get_num_threads()))
     return _slice_grids(_blur_grid(grid_val, geom), _blur_base_grid(base_w, geom), _blur_grid(band_w, geom), geom,
-                        density=len(rows) / float(h * w), missing_value=truncation,
+                        density=len(rows) / float(h * w), missing_value=terms.truncation,
                         first_band_layer=first_band_layer, first_missing_layer=first_missing_layer)
 
 
@@ -1012,12 +1082,8 @@ def sparse_joint_bilateral(guide: np.ndarray, rows: np.ndarray, cols: np.ndarray
 
 
 def filled_sparse_dsi(left: np.ndarray, guide: np.ndarray, rows: np.ndarray, cols: np.ndarray,
-                      right_values: np.ndarray, *, min_disp: int, num_disp: int,
-                      sigma_s: float, sigma_r: float, truncation: float,
-                      right_steps: np.ndarray | None = None, step_spacing: int = 1,
-                      step_weight: float = 0.0, step_truncation: float = 5.0,
-                      census_spacing: tuple[int, int] | None = None, census_weight: float = 0.0,
-                      cells_per_sigma_s: float = 2.0, cells_per_sigma_r: float = 2.0,
+                      right_values: np.ndarray, *, min_disp: int, num_disp: int, scale: FillScale,
+                      terms: SparseCostTerms, right_steps: np.ndarray | None = None,
                       pixel_of_row: np.ndarray | None = None) -> np.ndarray:
     """The paper's filled sparse DSI: Eq. (2) at the samples, spread by Eq. (3) to every pixel.
 
@@ -1033,23 +1099,13 @@ def filled_sparse_dsi(left: np.ndarray, guide: np.ndarray, rows: np.ndarray, col
         Sample values in 8-bit units.
     min_disp, num_disp : int
         Disparity range; layer ``i`` is ``min_disp + i``.
-    sigma_s, sigma_r : float
-        Filter sigmas (the paper: ``3 * stride`` and 20).
-    truncation : float
-        Cost truncation (see :func:`stereobudget.cost.pixel_cost`).
+    scale : FillScale
+        Eq. (3)'s sigmas and the grid's cells per sigma.
+    terms : SparseCostTerms
+        Eq. (2)'s cost terms.
     right_steps : ndarray, float32 (n,), optional
-        Gray difference to the sample ``step_spacing`` pixels to the right (NaN: none);
-        enables the step term of :func:`stereobudget.cost.sparse_pair_cost`.
-    step_spacing : int
-        Column spacing of the steps (the grid stride).
-    step_weight, step_truncation : float
-        Weight and truncation (gray levels) of the step term.
-    census_spacing : (int, int), optional
-        ``(stride_x, stride_y)`` of a regular sample grid whose samples arrive row by
-        row: enables the lattice census term of :func:`stereobudget.cost.sparse_pair_cost`
-        with weight ``census_weight``.
-    census_weight : float
-        Weight of the lattice census in the sparse cost (0: off).
+        Gray difference to the sample ``terms.step_spacing`` pixels to the right (NaN: none);
+        without it the step term is off.
     pixel_of_row : ndarray of int (H * W,), optional
         Row ``k`` of an ``(H * W, num_disp)`` result holds pixel ``pixel_of_row[k]``
         (row-major), e.g. a tree's depth-first order (:class:`stereobudget.aggregate.TreeLayout`).
@@ -1058,12 +1114,19 @@ def filled_sparse_dsi(left: np.ndarray, guide: np.ndarray, rows: np.ndarray, col
     -------
     ndarray, float32 (H, W, num_disp), or (H * W, num_disp) rows with ``pixel_of_row``
         Filled cost volume.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> left = np.random.default_rng(0).uniform(0, 255, (20, 30, 1)).astype(np.float32)
+    >>> rows, cols = (a.ravel() for a in np.mgrid[0:20:5, 0:30:5])
+    >>> volume = filled_sparse_dsi(left, left[..., 0], rows, cols, left[rows, cols], min_disp=0, num_disp=4,
+    ...                            scale=FillScale(sigma_s=7.5, sigma_r=20.0), terms=SparseCostTerms(truncation=15.0))
+    >>> volume.shape, volume.dtype
+    ((20, 30, 4), dtype('float32'))
     """
     grids = sparse_dsi_grids(left, guide, rows, cols, right_values, min_disp=min_disp, num_disp=num_disp,
-                             sigma_s=sigma_s, sigma_r=sigma_r, truncation=truncation, right_steps=right_steps,
-                             step_spacing=step_spacing, step_weight=step_weight, step_truncation=step_truncation,
-                             census_spacing=census_spacing, census_weight=census_weight,
-                             cells_per_sigma_s=cells_per_sigma_s, cells_per_sigma_r=cells_per_sigma_r)
+                             scale=scale, terms=terms, right_steps=right_steps)
     volume = slice_volume(guide, grids, pixel_of_row=pixel_of_row)
     release_grids(grids)
     return volume
@@ -1074,14 +1137,14 @@ def release_grids(grids: SliceGrids) -> None:
     recycle(grids.values, grids.base_weights, grids.band_weights)
 
 
-def _census_codes(guide, rows, cols, right_values, census_spacing, census_weight):
+def _census_codes(guide, rows, cols, right_values, terms):
     """Lattice census codes of the samples and I1's codes at the same spacing, or (None, None).
 
     The samples must be a regular grid sent row by row (rows x cols in row-major order).
     """
     from ..cost._census import lattice_census, spaced_census
     from ..cost._cost import to_gray
-    if census_spacing is None or census_weight <= 0 or len(rows) < 4:
+    if terms.census_spacing is None or terms.census_weight <= 0 or len(rows) < 4:
         return None, None
     rows, cols = np.asarray(rows, np.int64), np.asarray(cols, np.int64)
     n_cols = int(np.argmax(rows != rows[0])) if np.any(rows != rows[0]) else len(rows)
@@ -1089,17 +1152,13 @@ def _census_codes(guide, rows, cols, right_values, census_spacing, census_weight
         return None, None
     values = np.ascontiguousarray(right_values, np.float32).reshape(len(rows) // n_cols, n_cols, -1)
     codes = lattice_census(to_gray(values))
-    spacing_x, spacing_y = census_spacing
+    spacing_x, spacing_y = terms.census_spacing
     return codes, spaced_census(guide, spacing_x=spacing_x, spacing_y=spacing_y)
 
 
 def sparse_dsi_grids(left: np.ndarray, guide: np.ndarray, rows: np.ndarray, cols: np.ndarray,
-                     right_values: np.ndarray, *, min_disp: int, num_disp: int,
-                     sigma_s: float, sigma_r: float, truncation: float,
-                     right_steps: np.ndarray | None = None, step_spacing: int = 1,
-                     step_weight: float = 0.0, step_truncation: float = 5.0,
-                     census_spacing: tuple[int, int] | None = None, census_weight: float = 0.0,
-                     cells_per_sigma_s: float = 2.0, cells_per_sigma_r: float = 2.0) -> SliceGrids:
+                     right_values: np.ndarray, *, min_disp: int, num_disp: int, scale: FillScale,
+                     terms: SparseCostTerms, right_steps: np.ndarray | None = None) -> SliceGrids:
     """The splatted and blurred grids of :func:`filled_sparse_dsi`, not yet sliced.
 
     For callers that slice pixel by pixel inside their own kernel (:func:`slice_pixel`),
@@ -1112,30 +1171,24 @@ def sparse_dsi_grids(left: np.ndarray, guide: np.ndarray, rows: np.ndarray, cols
         ``K = num_disp`` layers.
     """
     h, w = guide.shape
-    geom = grid_geometry(h, w, float(guide.max(initial=0.0)), sigma_s=sigma_s, sigma_r=sigma_r,
-                         cells_per_sigma_s=cells_per_sigma_s, cells_per_sigma_r=cells_per_sigma_r)
+    geom = scale.geometry(h, w, float(guide.max(initial=0.0)))
     if right_steps is None:
         right_steps = np.full(len(rows), np.nan, np.float32)
-        step_weight = 0.0
-    right_codes, left_codes = _census_codes(guide, rows, cols, right_values, census_spacing,
-                                            census_weight)
+        terms = replace(terms, step_weight=0.0)
+    right_codes, left_codes = _census_codes(guide, rows, cols, right_values, terms)
     if right_codes is None:
-        right_codes, left_codes, census_weight = np.full(len(rows), -1, np.int64), np.zeros((h, w), np.uint8), 0.0
-    stride = _lattice_stride(np.asarray(rows, np.int64), np.asarray(cols, np.int64), w) if min_disp >= 0 else 0
-    if stride and num_disp > stride:
-        return _lattice_sparse_dsi_grids(left, guide, rows, cols, right_values, right_steps, stride=stride,
-                                         geom=geom, min_disp=int(min_disp), num_disp=int(num_disp),
-                                         truncation=truncation, step_spacing=step_spacing,
-                                         step_weight=step_weight, step_truncation=step_truncation,
-                                         right_codes=right_codes, left_codes=left_codes, census_weight=census_weight)
-    grid_val = zeroed_volume(geom.shape + (num_disp,))
-    grid_w = zeroed_volume(geom.shape + (num_disp,))
+        right_codes, left_codes = np.full(len(rows), -1, np.int64), np.zeros((h, w), np.uint8)
+        terms = replace(terms, census_weight=0.0)
     samples = RightSamples(np.ascontiguousarray(right_values, np.float32),
                            np.ascontiguousarray(right_steps, np.float32), right_codes)
-    terms = _splat_terms(truncation=truncation, step_spacing=step_spacing, step_weight=step_weight,
-                         step_truncation=step_truncation, census_weight=census_weight, geom=geom)
+    stride = _lattice_stride(np.asarray(rows, np.int64), np.asarray(cols, np.int64), w) if min_disp >= 0 else 0
+    if stride and num_disp > stride:
+        return _lattice_sparse_dsi_grids(left, guide, rows, cols, samples, left_codes, stride=stride, geom=geom,
+                                         min_disp=int(min_disp), num_disp=int(num_disp), terms=terms)
+    grid_val = zeroed_volume(geom.shape + (num_disp,))
+    grid_w = zeroed_volume(geom.shape + (num_disp,))
     _splat_sparse_dsi_split(np.asarray(rows, np.int64), np.asarray(cols, np.int64), samples,
-                            LeftPixels(left, guide, left_codes), int(min_disp), terms, grid_val, grid_w,
-                            get_num_threads())
+                            LeftPixels(left, guide, left_codes), int(min_disp), _splat_terms(terms, geom),
+                            grid_val, grid_w, get_num_threads())
     return _slice_grids(_blur_grid(grid_val, geom), _blur_base_grid(grid_w, geom), None, geom,
-                        density=len(rows) / float(h * w), missing_value=truncation)
+                        density=len(rows) / float(h * w), missing_value=terms.truncation)

@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from stereobudget.fill import filled_sparse_dsi, sparse_dsi_grids
+from stereobudget.fill import FillScale, SparseCostTerms, filled_sparse_dsi, sparse_dsi_grids
 from stereobudget.cost import full_dsi, to_gray
 from stereobudget.aggregate import build_tree, tree_layout
 from stereobudget.aggregate import pair_cost_rows
@@ -54,8 +54,8 @@ def test_hybrid_rows_are_the_weighted_mean_of_fill_and_dense(stride, min_disp, r
     rows, cols = rows.ravel(), cols.ravel()
     values = right[rows, cols]
     num_disp = 11
-    fill_args = dict(min_disp=min_disp, num_disp=num_disp, sigma_s=2.0 * stride, sigma_r=15.0, truncation=15.0,
-                     cells_per_sigma_s=1.0, cells_per_sigma_r=1.0)
+    fill_args = dict(min_disp=min_disp, num_disp=num_disp, terms=SparseCostTerms(truncation=15.0),
+                     scale=FillScale(sigma_s=2.0 * stride, sigma_r=15.0, cells_per_sigma_s=1.0, cells_per_sigma_r=1.0))
     fill = filled_sparse_dsi(left, guide, rows, cols, values, **fill_args)
     grids = sparse_dsi_grids(left, guide, rows, cols, values, **fill_args)
     weights = (0.7 / 15.0, 0.3 / 2.55)
@@ -76,7 +76,8 @@ def test_grids_need_their_guide_and_layer_count():
     guide = to_gray(left)
     rows, cols = np.meshgrid(np.arange(0, 23, 3), np.arange(0, 57, 3), indexing="ij")
     grids = sparse_dsi_grids(left, guide, rows.ravel(), cols.ravel(), right[rows.ravel(), cols.ravel()],
-                             min_disp=0, num_disp=5, sigma_s=6.0, sigma_r=15.0, truncation=15.0)
+                             min_disp=0, num_disp=5, scale=FillScale(sigma_s=6.0, sigma_r=15.0),
+                             terms=SparseCostTerms(truncation=15.0))
     left_layout, _ = _layouts(left, right)
     with pytest.raises(ValueError, match="layers"):
         pair_cost_rows(left, right, min_disp=0, num_disp=6, **DENSE, left_layout=left_layout, grids=grids,

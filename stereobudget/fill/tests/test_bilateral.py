@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from stereobudget.fill import filled_sparse_dsi, sparse_joint_bilateral
+from stereobudget.fill import FillScale, SparseCostTerms, filled_sparse_dsi, sparse_joint_bilateral
 from stereobudget.cost import pixel_cost
 
 
@@ -70,7 +70,8 @@ def test_filled_dsi_matches_per_layer_brute_force():
     right_values = right[rows, cols]
     trunc = 40.0
     fast = filled_sparse_dsi(left, guide, rows, cols, right_values, min_disp=min_disp, num_disp=num_disp,
-                             sigma_s=3.0 * stride, sigma_r=20.0, truncation=trunc)
+                             scale=FillScale(sigma_s=3.0 * stride, sigma_r=20.0),
+                             terms=SparseCostTerms(truncation=trunc))
     for i in range(num_disp):
         d = min_disp + i
         keep = cols + d < w

@@ -4,6 +4,7 @@ import numpy as np
 import pytest
 from numba import njit
 
+from stereobudget.fill import FillScale, SparseCostTerms
 from stereobudget.fill import _bilateral as bilateral
 from stereobudget.io import encode_image
 from stereobudget.cost import sample_row_steps, to_float_image, to_gray
@@ -30,12 +31,13 @@ def _inputs(scene, pattern):
 def test_split_weights_are_bit_identical(scene, monkeypatch, stride, offset_x, offset_y, min_disp, num_disp, steps):
     pattern = SamplingPattern("grid", stride, stride, offset_x, offset_y)
     left, guide, rows, cols, values, samples = _inputs(scene, pattern)
-    extra = {}
+    kwargs = dict(min_disp=min_disp, num_disp=num_disp, scale=FillScale(sigma_s=2.0 * stride, sigma_r=15.0),
+                  terms=SparseCostTerms(truncation=15.0))
     if steps:
         lattice = to_gray(values.reshape(grid_shape(pattern, samples.height, samples.width) + (-1,)))
-        extra = dict(right_steps=sample_row_steps(lattice).ravel(), step_spacing=stride, step_weight=0.4)
+        kwargs.update(right_steps=sample_row_steps(lattice).ravel(),
+                      terms=SparseCostTerms(truncation=15.0, step_spacing=stride, step_weight=0.4))
     assert bilateral._lattice_stride(np.asarray(rows, np.int64), np.asarray(cols, np.int64), 150) == stride
-    kwargs = dict(min_disp=min_disp, num_disp=num_disp, sigma_s=2.0 * stride, sigma_r=15.0, truncation=15.0, **extra)
     split = bilateral.filled_sparse_dsi(left, guide, rows, cols, values, **kwargs)
     monkeypatch.setattr(bilateral, "_lattice_stride", lambda *args: 0)
     per_layer = bilateral.filled_sparse_dsi(left, guide, rows, cols, values, **kwargs)
@@ -49,7 +51,8 @@ def test_layers_out_of_reach_are_written_as_missing_bit_identically(scene, monke
     # lattice path skips their slice where the band's weights are surely zero.
     pattern = SamplingPattern("grid", stride, stride, offset_x, 1)
     left, guide, rows, cols, values, _ = _inputs(scene, pattern)
-    kwargs = dict(min_disp=min_disp, num_disp=num_disp, sigma_s=2.0 * stride, sigma_r=15.0, truncation=15.0)
+    kwargs = dict(min_disp=min_disp, num_disp=num_disp, scale=FillScale(sigma_s=2.0 * stride, sigma_r=15.0),
+                  terms=SparseCostTerms(truncation=15.0))
     grids = bilateral.sparse_dsi_grids(left, guide, rows, cols, values, **kwargs)
     skipped = grids.first_missing_layer < num_disp
     assert skipped.any()
@@ -113,7 +116,8 @@ def test_light_layers_take_the_spatial_fallback_layer_by_layer(scene, stride, of
     # of theirs, base or band, is light.
     guide[2::stride, 60::23] = 255.0
     grids = bilateral.sparse_dsi_grids(left, guide, rows, cols, values, min_disp=min_disp, num_disp=num_disp,
-                                       sigma_s=2.0 * stride, sigma_r=15.0, truncation=15.0)
+                                       scale=FillScale(sigma_s=2.0 * stride, sigma_r=15.0),
+                                       terms=SparseCostTerms(truncation=15.0))
     expected = np.empty((72, 150, num_disp), np.float32)
     light = np.zeros(2, np.int64)
     _slice_by_layer(grids, guide, expected, light)
@@ -137,7 +141,8 @@ def test_fill_written_in_any_row_order_holds_the_same_rows(scene, pattern):
     # The decoders have the fill write its volume in a tree's depth-first order
     # (``pixel_of_row``); every row must be bit-identical to that pixel's row in pixel order.
     left, guide, rows, cols, values, _ = _inputs(scene, pattern)
-    kwargs = dict(min_disp=0, num_disp=20, sigma_s=10.0, sigma_r=15.0, truncation=15.0)
+    kwargs = dict(min_disp=0, num_disp=20, scale=FillScale(sigma_s=10.0, sigma_r=15.0),
+                  terms=SparseCostTerms(truncation=15.0))
     in_pixel_order = bilateral.filled_sparse_dsi(left, guide, rows, cols, values, **kwargs)
     pixel_of_row = np.random.default_rng(5).permutation(72 * 150)
     in_rows = bilateral.filled_sparse_dsi(left, guide, rows, cols, values, pixel_of_row=pixel_of_row, **kwargs)
@@ -196,9 +201,9 @@ def test_lattice_splat_in_row_parts_is_bit_identical(scene, monkeypatch, parts):
     pattern = SamplingPattern("grid", stride, stride, 1, 2)
     left, guide, rows, cols, values, samples = _inputs(scene, pattern)
     lattice = to_gray(values.reshape(grid_shape(pattern, samples.height, samples.width) + (-1,)))
-    kwargs = dict(min_disp=1, num_disp=16, sigma_s=2.0 * stride, sigma_r=15.0, truncation=15.0,
-                  right_steps=sample_row_steps(lattice).ravel(), step_spacing=stride, step_weight=0.4,
-                  cells_per_sigma_s=2.0, cells_per_sigma_r=1.0)
+    kwargs = dict(min_disp=1, num_disp=16, right_steps=sample_row_steps(lattice).ravel(),
+                  scale=FillScale(sigma_s=2.0 * stride, sigma_r=15.0, cells_per_sigma_s=2.0, cells_per_sigma_r=1.0),
+                  terms=SparseCostTerms(truncation=15.0, step_spacing=stride, step_weight=0.4))
     chosen = []
     lattice_parts = bilateral._lattice_parts
 
@@ -238,7 +243,8 @@ def test_base_weights_end_in_zero_cells_and_are_reused_by_the_next_fill(scene):
     # cells for them, and is handed back whole, so the next fill of the frame takes it again.
     pattern = SamplingPattern("grid", 5, 5, 0, 0)
     left, guide, rows, cols, values, _ = _inputs(scene, pattern)
-    kwargs = dict(min_disp=0, num_disp=25, sigma_s=10.0, sigma_r=15.0, truncation=15.0)
+    kwargs = dict(min_disp=0, num_disp=25, scale=FillScale(sigma_s=10.0, sigma_r=15.0),
+                  terms=SparseCostTerms(truncation=15.0))
     grids = bilateral.sparse_dsi_grids(left, guide, rows, cols, values, **kwargs)
     cells = grids.gy * grids.gx * grids.gz
     channels = grids.base_weights.shape[1]
