@@ -23,6 +23,8 @@ pair, Downsample).
 
 from __future__ import annotations
 
+from typing import NamedTuple
+
 import numpy as np
 from numba import njit, prange
 
@@ -90,15 +92,46 @@ def _gather_right_rows(buffer, w, y, min_disp, right_rows, right_flat, right_row
                 _gather_right_row(buffer[:w], xr, min_disp, right_rows[right_row_of_pixel[y * w + xr]])
 
 
+class DensePair(NamedTuple):
+    """The pair the dense cost compares, and the gray images of its gradient term."""
+
+    left: np.ndarray         # float32 (H, W, C), 8-bit units
+    right: np.ndarray        # float32 (H, W, C)
+    left_gray: np.ndarray    # float32, (H, W) or (1, 1) without a gradient term
+    right_gray: np.ndarray
+
+
+class DenseTerms(NamedTuple):
+    """Parameters of the dense cost (:func:`stereobudget.cost.dense_pixel_costs`)."""
+
+    truncation: np.float32
+    grad_truncation: np.float32
+    grad_weight: np.float32
+
+
+class FillMix(NamedTuple):
+    """Hybrid's mean of the fill sliced from its grids and the dense cost (``use_grids`` False: the
+    dense cost alone).  The grids themselves travel as an argument of their own: numba's parallel
+    loops cannot unpack a tuple nested in a tuple."""
+
+    guide: np.ndarray        # float32 (H, W), gray I1; (1, 1) without grids
+    use_grids: bool
+    grid_weight: np.float32
+    dense_weight: np.float32
+
+
 @njit(cache=True, parallel=True)
-def _pair_rows(left, right, left_gray, right_gray, min_disp, truncation, grad_truncation, grad_weight,
-               grids, guide, use_grids, grid_weight, dense_weight,
-               left_row_of_pixel, right_row_of_pixel, left_rows, right_rows):
+def _pair_rows(pair, min_disp, terms, grids, mix, left_row_of_pixel, right_row_of_pixel, left_rows, right_rows):
     """Left costs of each image row into ``left_rows``, the right view's into ``right_rows``.
 
-    With ``use_grids`` the cost is ``grid_weight * slice + dense_weight * dense``, else the
+    ``pair``: :class:`DensePair`, ``terms``: :class:`DenseTerms`, ``grids``: :class:`SliceGrids`,
+    ``mix``: :class:`FillMix`.
+    With ``mix.use_grids`` the cost is ``grid_weight * slice + dense_weight * dense``, else the
     dense cost.  ``right_rows`` with no rows skips the right view.
     """
+    left, right, left_gray, right_gray = pair
+    truncation, grad_truncation, grad_weight = terms
+    guide, use_grids, grid_weight, dense_weight = mix
     h, w, channels = left.shape
     num_disp = left_rows.shape[1]
     use_grad = grad_weight > 0
@@ -204,12 +237,11 @@ def pair_cost_rows(left: np.ndarray, right: np.ndarray, *, min_disp: int, num_di
     right_rows = (empty_volume((h * w, int(num_disp))) if right_layout is not None
                   else np.empty((0, int(num_disp)), np.float32))
     empty_rows = np.zeros(0, np.int64)
-    _pair_rows(left, right, left_gray, right_gray, int(min_disp), np.float32(truncation),
-               np.float32(grad_truncation), np.float32(grad_weight),
-               grids if use_grids else _no_grids(int(num_disp)),
-               np.ascontiguousarray(guide, np.float32) if use_grids else np.zeros((1, 1), np.float32),
-               use_grids, np.float32(mix_weights[0]), np.float32(mix_weights[1]),
-               left_layout.row_of_pixel,
+    terms = DenseTerms(np.float32(truncation), np.float32(grad_truncation), np.float32(grad_weight))
+    mix = FillMix(np.ascontiguousarray(guide, np.float32) if use_grids else np.zeros((1, 1), np.float32),
+                  use_grids, np.float32(mix_weights[0]), np.float32(mix_weights[1]))
+    _pair_rows(DensePair(left, right, left_gray, right_gray), int(min_disp), terms,
+               grids if use_grids else _no_grids(int(num_disp)), mix, left_layout.row_of_pixel,
                right_layout.row_of_pixel if right_layout is not None else empty_rows,
                left_rows, right_rows)
     return left_rows, (right_rows if right_layout is not None else None)
