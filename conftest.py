@@ -105,3 +105,28 @@ def _right_view_reference(left_cost, min_disp):
 def right_view_reference():
     """The right view's cost volume from the left one, by plain numpy indexing."""
     return _right_view_reference
+
+
+#: (width, height) of the frames of :func:`camera_frames`.
+CAMERA_FRAME_SIZE = (96, 64)
+
+
+@pytest.fixture(scope="module")
+def camera_frames(tmp_path_factory):
+    """A folder holding a camera's three frames: left images L/0..2.png, the right images
+    r0..2.png, and the right camera's raw rgb24 frames one after another in rights.raw."""
+    import cv2
+
+    from stereobudget.scenes import make_scene
+
+    folder = tmp_path_factory.mktemp("camera")
+    (folder / "L").mkdir()
+    rights = []
+    width, height = CAMERA_FRAME_SIZE
+    for index, kind in enumerate(("slanted", "planes", "fine_texture")):
+        scene = make_scene(kind, height=height, width=width, max_disp=16, seed=index)
+        assert cv2.imwrite(str(folder / "L" / f"{index}.png"), np.ascontiguousarray(scene.left[:, :, ::-1]))
+        assert cv2.imwrite(str(folder / f"r{index}.png"), np.ascontiguousarray(scene.right[:, :, ::-1]))
+        rights.append(np.ascontiguousarray(scene.right).tobytes())
+    (folder / "rights.raw").write_bytes(b"".join(rights))
+    return folder

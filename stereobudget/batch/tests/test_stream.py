@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import cv2
 import numpy as np
 import pytest
 
@@ -10,24 +9,13 @@ from stereobudget.batch import DecodeJob, decode_file, decode_stream, encode_str
 from stereobudget.errors import MismatchError, OptionError, TruncatedFileError
 from stereobudget.io import encode_file, read_disparity, sample_frames
 from stereobudget.sampling import SamplingPattern
-from stereobudget.scenes import make_scene
 
 GRID = SamplingPattern("grid", 5, 5)
 
 
 @pytest.fixture(scope="module")
-def frames(tmp_path_factory):
-    """Three small pairs (left PNGs L/0..2.png) and their right images as one raw rgb24 stream."""
-    folder = tmp_path_factory.mktemp("stream")
-    (folder / "L").mkdir()
-    rights = []
-    for index, kind in enumerate(("slanted", "planes", "fine_texture")):
-        scene = make_scene(kind, height=64, width=96, max_disp=16, seed=index)
-        assert cv2.imwrite(str(folder / "L" / f"{index}.png"), np.ascontiguousarray(scene.left[:, :, ::-1]))
-        assert cv2.imwrite(str(folder / f"r{index}.png"), np.ascontiguousarray(scene.right[:, :, ::-1]))
-        rights.append(scene.right)
-    (folder / "rights.raw").write_bytes(b"".join(np.ascontiguousarray(r).tobytes() for r in rights))
-    return folder
+def frames(camera_frames):
+    return camera_frames
 
 
 def test_template_index_takes_an_integer_format():

@@ -6,14 +6,12 @@ import json
 import subprocess
 import sys
 
-import cv2
 import numpy as np
 import pytest
 
 from stereobudget.io import pfm_frames, read_disparity
-from stereobudget.scenes import make_scene
 
-SIZE = (96, 64)
+SIZE = (96, 64)  # the frames of the camera_frames fixture (conftest.py)
 
 
 def command(tool):
@@ -21,17 +19,8 @@ def command(tool):
 
 
 @pytest.fixture(scope="module")
-def camera(tmp_path_factory):
-    """Left images L/0..2.png and the right camera's raw rgb24 frames, one after another."""
-    folder = tmp_path_factory.mktemp("camera")
-    (folder / "L").mkdir()
-    rights = []
-    for index, kind in enumerate(("slanted", "planes", "fine_texture")):
-        scene = make_scene(kind, height=SIZE[1], width=SIZE[0], max_disp=16, seed=index)
-        assert cv2.imwrite(str(folder / "L" / f"{index}.png"), np.ascontiguousarray(scene.left[:, :, ::-1]))
-        rights.append(np.ascontiguousarray(scene.right).tobytes())
-    (folder / "rights.raw").write_bytes(b"".join(rights))
-    return folder
+def camera(camera_frames):
+    return camera_frames
 
 
 def test_camera_pipe_to_disparity_stream_equals_one_process_per_frame(camera):
