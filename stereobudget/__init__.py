@@ -6,16 +6,19 @@ The library is grouped by topic; each subpackage re-exports its public names:
   atomic writes, size and memory limits.
 - :mod:`stereobudget.sampling` — where the right camera samples (grid, random, adaptive,
   farthest-point), and the block means Downsample sends.
-- :mod:`stereobudget.cost` — matching costs.  **Eq. 1**, the sparse DSI (the cost of each
-  left pixel against the right samples): :func:`stereobudget.cost.sparse_pair_cost`, with
-  its lattice census term; the census of a full pair and of a grid's spacing
+- :mod:`stereobudget.cost` — matching costs.  **Eq. 1**, the DSI of a full pair
+  (:func:`stereobudget.cost.full_dsi`); **Eq. 2**, the sparse DSI (the cost of each left pixel
+  against the right samples): :func:`stereobudget.cost.sparse_pair_cost`, with its step and
+  lattice census terms; the census of a full pair and of a grid's spacing
   (:func:`stereobudget.cost.census_cost_volume`, :func:`stereobudget.cost.spaced_census`).
-- :mod:`stereobudget.fill` — **Eq. 2**, the joint bilateral fill of the sparse DSI:
-  :func:`stereobudget.fill.filled_sparse_dsi` (the grids of :func:`stereobudget.fill.sparse_dsi_grids`);
-  the low-passed pair Hybrid and Downsample use (:func:`stereobudget.fill.gaussian_lowpass`,
+- :mod:`stereobudget.fill` — **Eq. 3** with the filter of **Eq. 4**, the normalised joint
+  bilateral fill of the sparse DSI: :func:`stereobudget.fill.filled_sparse_dsi` (the grids of
+  :func:`stereobudget.fill.sparse_dsi_grids`; its terms and scales in
+  :class:`stereobudget.fill.SparseCostTerms` and :class:`stereobudget.fill.FillScale`); the
+  low-passed pair Hybrid and Downsample use (:func:`stereobudget.fill.gaussian_lowpass`,
   :func:`stereobudget.fill.block_lowpass`).
-- :mod:`stereobudget.aggregate` — **Eq. 3**, aggregation on the minimum spanning tree:
-  :func:`stereobudget.aggregate.aggregate`; the cost volumes of both views
+- :mod:`stereobudget.aggregate` — Yang's aggregation on the minimum spanning tree (the paper's
+  cited matcher): :func:`stereobudget.aggregate.aggregate`; the cost volumes of both views
   (:func:`stereobudget.aggregate.pair_cost_rows`, where **Hybrid's mix** of the Sparse fill
   and the dense DSI of the low-passed pair is taken per pixel), winner-take-all and the
   left-right check with refinement; the semi-global paths the default full-pair and Hybrid

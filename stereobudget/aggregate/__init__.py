@@ -1,4 +1,4 @@
-"""Cost aggregation and winners: the minimum-spanning-tree filter (Eq. 3), semi-global paths, winner-take-all, LR refinement."""
+"""Cost aggregation and winners: Yang's minimum-spanning-tree filter, semi-global paths, winner-take-all, LR refinement."""
 
 from .._lazy import attach
 

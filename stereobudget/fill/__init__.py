@@ -1,4 +1,4 @@
-"""Filling the sparse DSI (Eq. 2): the joint bilateral grid, and the low-pass fills Hybrid mixes in."""
+"""Filling the sparse DSI (Eq. 2) by the normalised joint bilateral filter (Eq. 3, 4) on a bilateral grid, and the low-pass fills Hybrid mixes in."""
 
 from .._lazy import attach
 
