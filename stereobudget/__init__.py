@@ -34,6 +34,13 @@ The library is grouped by topic; each subpackage re-exports its public names:
   ``sb-encode`` / ``sb-decode`` commands; :mod:`stereobudget.scenes` — synthetic scenes
   with exact ground truth.
 
+Plain references, for tests and for reading, sit beside the fast paths and are named for them:
+:func:`stereobudget.cost.census_cost_volume_reference`,
+:func:`stereobudget.fill.sparse_joint_bilateral_reference` and
+:func:`stereobudget.fill.filled_sparse_dsi_reference` (Eqs. 2-4 summed directly),
+:func:`stereobudget.aggregate.aggregate_reference` (Yang's serial two-pass walk) and
+:func:`stereobudget.aggregate.semiglobal_aggregate_reference`.
+
 The camera side (:mod:`stereobudget.io`, :mod:`stereobudget.sampling`) imports neither numba
 nor OpenCV; the decoder is loaded on first use of :func:`decode`.
 """

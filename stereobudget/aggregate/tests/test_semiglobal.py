@@ -3,8 +3,8 @@
 import numpy as np
 import pytest
 
-from stereobudget.aggregate._semiglobal import (semiglobal_aggregate, semiglobal_aggregate_reference,
-                                                semiglobal_disparities, semiglobal_winners)
+from stereobudget.aggregate import (semiglobal_aggregate, semiglobal_aggregate_reference, semiglobal_disparities,
+                                    semiglobal_winners)
 
 
 @pytest.mark.parametrize("paths", [4, 8])

@@ -19,7 +19,7 @@ from hypothesis import strategies as st
 from stereobudget.errors import ImageReadError, OptionError
 from stereobudget.aggregate._tree import (MinimumSpanningTree, aggregate, aggregate_rows_winners, aggregate_two_rows_winners,
                                aggregate_winners, build_trees, build_tree, distance_rows_winners, tree_layout)
-from stereobudget.aggregate import winner_take_all
+from stereobudget.aggregate import aggregate_reference, winner_take_all
 import stereobudget.aggregate._tree as tree_module
 
 SIGMA = 0.1 * 255
@@ -337,6 +337,19 @@ def test_aggregate_equals_bruteforce_random_shapes(height, width, levels, median
     np.testing.assert_allclose(aggregate(cost, tree), expected, rtol=1e-4)
 
 
+@pytest.mark.parametrize("shape", [(1, 1), (1, 9), (11, 14)])
+def test_serial_two_pass_reference_equals_bruteforce_tree_filter(shape):
+    rng = np.random.default_rng(shape[0] * 31 + shape[1])
+    guide = random_guide(rng, *shape, levels=8)
+    cost = rng.random(shape + (4,), dtype=np.float32) * 20
+    similarity, tree = tree_distance_similarity_bruteforce(guide, sigma=SIGMA, median_size=3)
+    expected = (similarity @ cost.reshape(-1, 4).astype(np.float64)).reshape(cost.shape)
+    # The tree stores its similarities in float32; the brute force recomputes them in float64.
+    np.testing.assert_allclose(aggregate_reference(cost, tree), expected, rtol=1e-6)
+    with pytest.raises(ValueError, match="does not fit"):
+        aggregate_reference(cost[:, :-1] if shape[1] > 1 else cost[:0], tree)
+
+
 def test_two_thread_split_equals_bruteforce():
     # The public call only splits large grids; run the split kernel directly on a small one.
     rng = np.random.default_rng(11)
@@ -358,9 +371,7 @@ def test_large_grid_parallel_path_matches_serial():
     cost = rng.random((140, 150, 20), dtype=np.float32)
     tree = build_tree(guide)
     assert tree.height * tree.width >= tree_module._PARALLEL_MIN_NODES
-    serial = np.empty_like(cost)
-    tree_module._aggregate_serial(cost.reshape(-1, 20), None, tree.order, tree.parent, tree.weight,
-                                  serial.reshape(-1, 20), np.empty(0, np.float32), 0, 20, tree_module._NO_SIZES)
+    serial = aggregate_reference(cost, tree)
     np.testing.assert_allclose(aggregate(cost, tree), serial, rtol=1e-5)
     in_place = cost.copy()
     aggregate(in_place, tree, out=in_place)

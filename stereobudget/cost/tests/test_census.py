@@ -3,8 +3,7 @@
 import numpy as np
 import pytest
 
-from stereobudget.cost._census import (CENSUS_BITS, census_cost_volume, census_cost_volume_reference,
-                                       census_transform)
+from stereobudget.cost import CENSUS_BITS, census_cost_volume, census_cost_volume_reference, census_transform
 
 
 @pytest.fixture

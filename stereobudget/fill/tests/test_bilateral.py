@@ -3,23 +3,8 @@
 import numpy as np
 import pytest
 
-from stereobudget.fill import FillScale, SparseCostTerms, filled_sparse_dsi, sparse_joint_bilateral
-from stereobudget.cost import pixel_cost
-
-
-def brute_force_sparse_jbf(guide, rows, cols, values, *, sigma_s, sigma_r):
-    """Direct Eq. (3): every output pixel sums over every sample (O(N n)); float64."""
-    h, w = guide.shape
-    yy, xx = np.mgrid[0:h, 0:w]
-    num = np.zeros((h, w, values.shape[1]))
-    den = np.zeros((h, w))
-    g = guide.astype(np.float64)
-    for r, c, v in zip(rows, cols, values.astype(np.float64)):
-        f = np.exp(-((yy - r) ** 2 + (xx - c) ** 2) / (2 * sigma_s ** 2)
-                   - (g - g[r, c]) ** 2 / (2 * sigma_r ** 2))
-        num += f[:, :, None] * v
-        den += f
-    return num / den[:, :, None]
+from stereobudget.fill import (FillScale, SparseCostTerms, filled_sparse_dsi, filled_sparse_dsi_reference,
+                               sparse_joint_bilateral, sparse_joint_bilateral_reference)
 
 
 def _textured(h, w, seed=0):
@@ -50,7 +35,7 @@ def test_grid_filter_matches_brute_force(stride, cells, sigma_s_per_stride, sigm
     sigma_s = sigma_s_per_stride * stride
     fast = sparse_joint_bilateral(guide, rows, cols, values, sigma_s=sigma_s, sigma_r=sigma_r,
                                   cells_per_sigma_s=cells, cells_per_sigma_r=cells)
-    ref = brute_force_sparse_jbf(guide, rows, cols, values, sigma_s=sigma_s, sigma_r=sigma_r)
+    ref = sparse_joint_bilateral_reference(guide, rows, cols, values, sigma_s=sigma_s, sigma_r=sigma_r)
     mean_bound, p99_bound, max_bound = bounds
     for ch in range(2):
         err = np.abs(fast[..., ch] - ref[..., ch])
@@ -67,21 +52,19 @@ def test_filled_dsi_matches_per_layer_brute_force():
     guide = left[:, :, 0].copy()
     rr, cc = np.mgrid[0:h:stride, 0:w:stride]
     rows, cols = rr.ravel(), cc.ravel()
-    right_values = right[rows, cols]
-    trunc = 40.0
-    fast = filled_sparse_dsi(left, guide, rows, cols, right_values, min_disp=min_disp, num_disp=num_disp,
-                             scale=FillScale(sigma_s=3.0 * stride, sigma_r=20.0),
-                             terms=SparseCostTerms(truncation=trunc))
-    for i in range(num_disp):
-        d = min_disp + i
-        keep = cols + d < w
-        lr, lc = rows[keep], cols[keep] + d
-        costs = np.array([pixel_cost(left[r, c], right_values[k], np.float32(trunc))
-                          for r, c, k in zip(lr, lc, np.flatnonzero(keep))], dtype=np.float32)
-        ref = brute_force_sparse_jbf(guide, lr, lc, costs[:, None], sigma_s=3.0 * stride, sigma_r=20.0)[..., 0]
-        err = np.abs(fast[..., i] - ref)
-        assert np.mean(err) < 1.0, (d, np.mean(err))
-        assert np.percentile(err, 99) < 4.0, (d, np.percentile(err, 99))
+    args = (left, guide, rows, cols, right[rows, cols])
+    options = dict(min_disp=min_disp, num_disp=num_disp, scale=FillScale(sigma_s=3.0 * stride, sigma_r=20.0),
+                   terms=SparseCostTerms(truncation=40.0))
+    err = np.abs(filled_sparse_dsi(*args, **options) - filled_sparse_dsi_reference(*args, **options))
+    assert np.all(np.mean(err, axis=(0, 1)) < 1.0), np.mean(err, axis=(0, 1))
+    assert np.all(np.percentile(err, 99, axis=(0, 1)) < 4.0), np.percentile(err, 99, axis=(0, 1))
+
+
+def test_reference_fill_has_the_colour_term_only():
+    with pytest.raises(ValueError, match="colour term only"):
+        filled_sparse_dsi_reference(np.zeros((4, 4, 1)), np.zeros((4, 4)), [0], [0], np.zeros((1, 1)), min_disp=0,
+                                    num_disp=2, scale=FillScale(sigma_s=2.0, sigma_r=10.0),
+                                    terms=SparseCostTerms(truncation=15.0, census_weight=0.5))
 
 
 def test_no_samples_nearby_falls_back_to_missing_value():
