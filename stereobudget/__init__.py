@@ -38,8 +38,9 @@ Plain references, for tests and for reading, sit beside the fast paths and are n
 :func:`stereobudget.cost.census_cost_volume_reference`,
 :func:`stereobudget.fill.sparse_joint_bilateral_reference` and
 :func:`stereobudget.fill.filled_sparse_dsi_reference` (Eqs. 2-4 summed directly),
-:func:`stereobudget.aggregate.aggregate_reference` (Yang's serial two-pass walk) and
-:func:`stereobudget.aggregate.semiglobal_aggregate_reference`.
+:func:`stereobudget.aggregate.aggregate_reference` (Yang's serial two-pass walk),
+:func:`stereobudget.aggregate.left_right_refinement_reference` (his left-right check and
+refinement) and :func:`stereobudget.aggregate.semiglobal_aggregate_reference`.
 
 The camera side (:mod:`stereobudget.io`, :mod:`stereobudget.sampling`) imports neither numba
 nor OpenCV; the decoder is loaded on first use of :func:`decode`.

@@ -42,3 +42,45 @@ def aggregate_reference(cost: np.ndarray, tree: MinimumSpanningTree) -> np.ndarr
         s = similarity[node]
         total[node] = s * total[tree.parent[node]] + (1.0 - s * s) * upward[node]
     return total.reshape(h, w, d)
+
+
+def left_right_refinement_reference(disp_left: np.ndarray, disp_right: np.ndarray, tree: MinimumSpanningTree, *,
+                                    min_disp: int, num_disp: int, tolerance: float = 1.0):
+    """Yang's left-right check and non-local refinement, by definition.
+
+    A left pixel is stable where the right view's disparity at ``x - round(d)`` agrees with
+    its own within ``tolerance``.  The refinement cost is ``|min_disp + i - D(q)|`` at stable
+    pixels and 0 elsewhere, aggregated on the left tree (:func:`aggregate_reference`); each
+    pixel takes the winner with the parabola fit (:func:`stereobudget.aggregate.winner_take_all`).
+    The reference of :func:`stereobudget.aggregate.left_right_stable` followed by
+    :func:`stereobudget.aggregate.nonlocal_refinement`.
+
+    Parameters
+    ----------
+    disp_left, disp_right : ndarray (H, W)
+        Disparities of the left and right views.
+    tree : MinimumSpanningTree
+        Tree of the left image.
+    min_disp, num_disp : int
+        Layer ``i`` of the refinement cost is disparity ``min_disp + i``.
+    tolerance : float
+        Largest disagreement of a stable pixel, in pixels.
+
+    Returns
+    -------
+    refined : ndarray, float32 (H, W)
+    stable : ndarray, bool (H, W)
+    """
+    from ._winner import winner_take_all
+
+    h, w = disp_left.shape
+    stable = np.zeros((h, w), bool)
+    for y in range(h):
+        for x in range(w):
+            d = float(disp_left[y, x])
+            xr = int(np.floor(x - d + 0.5))
+            stable[y, x] = 0 <= xr < w and abs(d - float(disp_right[y, xr])) <= tolerance
+    layers = min_disp + np.arange(num_disp, dtype=np.float64)
+    cost = np.where(stable[..., None], np.abs(layers - np.asarray(disp_left, np.float64)[..., None]), 0.0)
+    aggregated = aggregate_reference(cost, tree)
+    return winner_take_all(aggregated.astype(np.float32), int(min_disp)), stable
