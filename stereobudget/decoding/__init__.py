@@ -8,7 +8,7 @@ __getattr__, __dir__, __all__ = attach(__name__, {
     '_params': ['DecoderParams', 'DecodeResult', 'check_inputs', 'adapt_to_noise'],
     '_hybrid': ['hybrid_weight'],
     '_decoders': ['decode', 'Decoder', 'shared_decoder'],
-    '_tiling': ['DEFAULT_TILE_OVERLAP', 'MIN_TILE_ROWS', 'TILED_METHODS', 'auto_tile_rows', 'decode_tiled'],
+    '_tiling': ['band_samples', 'DEFAULT_TILE_OVERLAP', 'MIN_TILE_ROWS', 'TILED_METHODS', 'auto_tile_rows', 'decode_tiled'],
     '_memory': ['decode_memory'],
     '_methods': ['METHODS', 'DEFAULT_METHOD'],
     '_disprange': ['AUTO', 'RangeEstimate', 'estimate_disparity_range', 'is_auto', 'resolve_range'],

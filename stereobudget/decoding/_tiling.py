@@ -29,12 +29,24 @@ MIN_TILE_ROWS = 64
 TILED_METHODS = ("sparse", "hybrid", "full")
 
 
-def _band_samples(samples: SampleSet, top: int, bottom: int):
+def band_samples(samples: SampleSet, top: int, bottom: int):
     """The samples of rows ``[top, bottom)`` as a sample set of that band.
 
-    A regular grid stays a real :class:`SampleSet` (the lattice rows inside the band,
-    the row offset moved to the band's origin), so every grid-only decoder path still
-    applies; other point patterns get a :class:`_BandSamples` view.
+    Parameters
+    ----------
+    samples : SampleSet
+        The samples of a whole frame.
+    top, bottom : int
+        The band's first row and the row after its last, in frame rows.
+
+    Returns
+    -------
+    SampleSet or sample-set view
+        A regular grid stays a real :class:`SampleSet` (the lattice rows inside the band,
+        the row offset moved to the band's origin), so every grid-only decoder path still
+        applies; other point patterns get a read-only view with the decoders' reading
+        interface, positions relative to the band.  A Bayer mosaic band starting on an odd
+        row carries the colour order of that row.
     """
     p = samples.pattern
     if not p.is_regular_grid:
@@ -172,13 +184,13 @@ def _decode_bands(left, samples, *, max_disp, min_disp, method, params, tile_row
     for top in range(0, h, tile_rows):
         bottom = min(top + tile_rows, h)
         band_top, band_bottom = max(top - overlap, 0), min(bottom + overlap, h)
-        band_left, band_samples = left[band_top:band_bottom], _band_samples(samples, band_top, band_bottom)
+        band_left, band_right = left[band_top:band_bottom], band_samples(samples, band_top, band_bottom)
         # The whole frame's noise-adapted params hold for its bands.
-        band_method, _ = resolve_method(band_left, band_samples, method=method, params=params,
+        band_method, _ = resolve_method(band_left, band_right, method=method, params=params,
                                         min_disp=min_disp, max_disp=max_disp, adapt=False)
         # The bands are sized to the memory limit: no room for spare volumes beside them.
         with scratch.holding_no_large_spares():
-            band = decode_frame(band_left, band_samples, max_disp=max_disp, min_disp=min_disp,
+            band = decode_frame(band_left, band_right, max_disp=max_disp, min_disp=min_disp,
                                 method=band_method, params=params, max_memory=max_memory)
         disparity[top:bottom] = band.disparity[top - band_top:bottom - band_top]
         for stage, seconds in band.timings.items():
