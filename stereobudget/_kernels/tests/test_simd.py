@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 from numba import njit
 
-from stereobudget._kernels._simd import (MAX_PERIOD_CHANNELS, MAX_PERIOD_LANES, MIN_VECTOR_LENGTH, PERIOD_READ_PAST,
+from stereobudget._kernels import (MAX_PERIOD_CHANNELS, MAX_PERIOD_LANES, MIN_VECTOR_LENGTH, PERIOD_READ_PAST,
                                 blend_rows_first_min, first_min, period_lanes, periodic_corner_sum,
                                 skewed_block_copy)
 

@@ -39,7 +39,7 @@ def test_winners_left_and_right_views():
 
 
 def test_fill_from_row_takes_the_nearest_valid_pixel():
-    from stereobudget.aggregate._refine import fill_from_row
+    from stereobudget.aggregate import fill_from_row
     rng = np.random.default_rng(1)
     disparity = rng.uniform(0, 30, (6, 17)).astype(np.float32)
     valid = rng.random((6, 17)) < 0.4

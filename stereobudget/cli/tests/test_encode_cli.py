@@ -368,9 +368,9 @@ def test_refuses_binary_output_to_a_terminal(png):
 
 
 def test_cli_pixel_formats_match_the_library():
-    from stereobudget.cli.encode import _RAW_PIX_FMTS
-    from stereobudget.io._images import RAW_PIXEL_FORMATS
-    assert set(_RAW_PIX_FMTS) == set(RAW_PIXEL_FORMATS)
+    from stereobudget.io import RAW_PIXEL_FORMATS
+    (option,) = [param for param in encode_command.params if param.name == "pix_fmt"]
+    assert set(option.type.choices) == set(RAW_PIXEL_FORMATS)
 
 
 def test_version():

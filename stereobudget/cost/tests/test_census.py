@@ -44,7 +44,7 @@ def test_signature_bits():
 def test_lattice_census_equals_the_spaced_census_of_i1_at_the_true_shift():
     # A sample at right (y, x) and I1 at (y, x + d) see the same neighbours at the
     # grid's spacing, so their codes agree wherever the neighbours stay inside.
-    from stereobudget.cost._census import lattice_census, spaced_census
+    from stereobudget.cost import lattice_census, spaced_census
     rng = np.random.default_rng(8)
     left = rng.uniform(0, 255, (40, 60)).astype(np.float32)
     d, sx, sy = 3, 4, 5
@@ -60,7 +60,7 @@ def test_lattice_census_equals_the_spaced_census_of_i1_at_the_true_shift():
 
 
 def test_sparse_pair_cost_mixes_the_census_bits():
-    from stereobudget.cost._cost import sparse_pair_cost
+    from stereobudget.cost import sparse_pair_cost
     pixel = np.array([100.0, 100.0, 100.0], np.float32)
     plain = sparse_pair_cost(pixel, pixel + 10, np.nan, np.nan, 20.0, 0.0, 5.0)
     assert plain == pytest.approx(10.0)

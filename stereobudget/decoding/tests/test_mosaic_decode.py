@@ -7,10 +7,10 @@ import pytest
 
 from stereobudget.cost import pixel_cost
 from stereobudget.decoding import decode
-from stereobudget.decoding._tiling import _band_samples
+from stereobudget.decoding import band_samples
 from stereobudget.errors import MismatchError, OptionError
 from stereobudget.io import encode_image, read_samples, write_samples
-from stereobudget.io._mosaic import mosaic_image, rgb_with_gaps
+from stereobudget.io import mosaic_image, rgb_with_gaps
 from stereobudget.metrics import bad_pixel_rate
 from stereobudget.sampling import SamplingPattern
 from stereobudget.scenes import make_scene
@@ -66,7 +66,7 @@ def test_full_pair_and_gray_left_are_refused_with_a_clear_message(scene):
 @pytest.mark.parametrize("top", [0, 7, 10, 33])
 def test_bands_keep_every_sample_colour(scene, top):
     ss = _mosaic_samples(scene.right, 3, offset_x=1, offset_y=2)
-    band = _band_samples(ss, top, top + 100)
+    band = band_samples(ss, top, top + 100)
     rows, cols = ss.positions()
     inside = (rows >= top) & (rows < top + 100)
     np.testing.assert_array_equal(band.sample_colours(), ss.sample_colours()[inside])

@@ -5,7 +5,7 @@ import pytest
 
 from stereobudget.io import encode_image
 from stereobudget.decoding import Decoder, auto_tile_rows, decode, decode_tiled
-from stereobudget.decoding._tiling import _band_samples
+from stereobudget.decoding import band_samples
 from stereobudget.errors import OptionError
 from stereobudget.io import estimate_decode_memory
 from stereobudget.sampling import SamplingPattern
@@ -22,7 +22,7 @@ def test_band_samples_are_the_rows_of_the_band(scene, pattern):
     samples = encode_image(scene.right, pattern=pattern)
     rows, cols = samples.positions()
     values = samples.values_rgb()
-    band = _band_samples(samples, 37, 90)
+    band = band_samples(samples, 37, 90)
     band_rows, band_cols = band.positions()
     keep = (rows >= 37) & (rows < 90)
     expected = {(r - 37, c): tuple(v) for r, c, v in zip(rows[keep], cols[keep], values[keep])}

@@ -2,15 +2,16 @@ import cv2
 import numpy as np
 import pytest
 
+from stereobudget.cost import to_float_image
+from stereobudget.fill import gaussian_lowpass, gaussian_taps, lowpass_interpolation
 from stereobudget.io import SampleSet, encode_image
-from stereobudget.fill._lowpass import _sample_values_f32, gaussian_lowpass, gaussian_taps, lowpass_interpolation
 from stereobudget.sampling import SamplingPattern
 
 
 def _impulse_blur(samples, sigma):
     """The definition: blur the impulse image and its mask with OpenCV, divide where reached."""
     rows, cols = samples.positions()
-    values = _sample_values_f32(samples)
+    values = to_float_image(samples.values_rgb()[:, None, :])[:, 0, :]  # float32 (n, C), 8-bit units
     impulses = np.zeros((samples.height, samples.width, values.shape[1] + 1), np.float32)
     impulses[rows, cols, :-1] = values
     impulses[rows, cols, -1] = 1.0

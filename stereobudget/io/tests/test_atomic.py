@@ -6,12 +6,12 @@ import io
 import os
 import signal
 import sys
+import tempfile
 
 import pytest
 
-from stereobudget.io import _atomic as atomic
-from stereobudget.io._atomic import (atomic_write, check_output_path, interrupts_deferred, read_input_bytes,
-                                 write_output_bytes)
+from stereobudget.io import (atomic_write, check_output_path, interrupts_deferred, read_input_bytes,
+                             write_output_bytes)
 from stereobudget.errors import ImageReadError, OutputError
 
 
@@ -101,11 +101,10 @@ def test_swallowed_interrupt_is_redelivered_not_printed(tmp_path):
     # A KeyboardInterrupt raised inside a finaliser (as inside numba's ctypes cache
     # callback) cannot propagate; it must come back a moment later, without a traceback.
     import subprocess
-    import tempfile
     script = tmp_path / "swallow.py"
     script.write_text(
         "import signal, time\n"
-        "from stereobudget.io._atomic import redeliver_swallowed_interrupts\n"
+        "from stereobudget.io import redeliver_swallowed_interrupts\n"
         "def handler(signum, frame):\n"
         "    raise KeyboardInterrupt\n"
         "signal.signal(signal.SIGTERM, handler)\n"
@@ -146,14 +145,14 @@ def sigint_raises_keyboard_interrupt():
 def test_an_interrupt_as_the_temporary_file_is_created_leaves_no_file(tmp_path, monkeypatch):
     # A Ctrl-C that arrives while mkstemp runs (or just as it returns) must not leave the
     # new file behind under a name nobody recorded.
-    real_mkstemp = atomic.tempfile.mkstemp
+    real_mkstemp = tempfile.mkstemp
 
     def mkstemp_then_signal(*args, **kwargs):
         created = real_mkstemp(*args, **kwargs)
         signal.raise_signal(signal.SIGINT)
         return created
 
-    monkeypatch.setattr(atomic.tempfile, "mkstemp", mkstemp_then_signal)
+    monkeypatch.setattr(tempfile, "mkstemp", mkstemp_then_signal)  # the one atomic_write calls
     with pytest.raises(KeyboardInterrupt):
         with atomic_write(tmp_path / "out.bin") as handle:
             handle.write(b"never")

@@ -10,8 +10,8 @@ import numpy as np
 import pytest
 from hypothesis import given, settings, strategies as st
 
-from stereobudget.io import _samples as container
-from stereobudget.io._samples import (HEADER_SIZE_V1_0, MAGIC, SampleSet, encode_image, load_samples,
+from stereobudget import io as sbio
+from stereobudget.io import (HEADER_SIZE_V1_0, MAGIC, SampleSet, encode_image, load_samples,
                                     probe, read_samples, save_samples, write_samples)
 from stereobudget.errors import (CorruptHeaderError, CorruptPayloadError, NotASampleFileError,
                                  OutputError, TruncatedFileError, UnsupportedVersionError)
@@ -79,10 +79,6 @@ def test_example_file_of_the_spec_is_reproduced_byte_for_byte():
 def test_jitter_test_vector_of_the_spec():
     rows, cols = sample_positions(SamplingPattern("jitter", 4, 4, seed=42), 6, 10)
     assert list(zip(rows.tolist(), cols.tolist())) == [(2, 1), (3, 7), (3, 8), (5, 0), (4, 6), (4, 8)]
-
-
-def test_crc_is_the_zlib_crc():
-    assert container._crc32(b"123456789") == 0xCBF43926
 
 
 # --- round trips ----------------------------------------------------------------------
@@ -161,7 +157,7 @@ def test_every_pattern_code_is_representable(kind):
     values = np.arange(n * 3, dtype=np.uint16).reshape(n, 3)
     ss = SampleSet(height=10, width=11, channel_order="bgr", pattern=pattern, values=values)
     data = write_samples(ss)
-    assert data[23] == container.PATTERN_CODES[kind]
+    assert data[23] == sbio.PATTERN_CODES[kind]
     back = read_samples(data)
     assert back.pattern == pattern and back.channel_order == "bgr"
     np.testing.assert_array_equal(back.values, values)
@@ -358,8 +354,7 @@ def raw_grid_cases(draw):
 
 
 def _numpy_raw_encoding(frame: bytes, size, pix_fmt: str, pattern) -> bytes:
-    from stereobudget.io import _images as imageio
-    image, order = imageio.read_raw(frame, width=size[0], height=size[1], pix_fmt=pix_fmt)
+    image, order = sbio.read_raw(frame, width=size[0], height=size[1], pix_fmt=pix_fmt)
     return write_samples(encode_image(image, pattern=pattern, channel_order=order))
 
 
@@ -374,7 +369,7 @@ def test_raw_grid_path_writes_the_bytes_of_the_numpy_path(case):
         src, out = f"{tmp}/frame.raw", f"{tmp}/f.sbs"
         with open(src, "wb") as handle:
             handle.write(frame)
-        report = container.encode_file(src, out, pattern=pattern, raw_size=size, pix_fmt=pix_fmt)
+        report = sbio.encode_file(src, out, pattern=pattern, raw_size=size, pix_fmt=pix_fmt)
         with open(out, "rb") as handle:
             written = handle.read()
     assert written == expected
@@ -411,7 +406,6 @@ def test_raw_grid_payload_matches_numpy_slicing(pix_fmt, h, w, sx, sy, ox, oy):
 
 
 def test_raw_grid_path_errors_match_the_numpy_path(tmp_path):
-    from stereobudget.io import _images as imageio
     from stereobudget.errors import ImageReadError, OptionError
 
     src = tmp_path / "f.raw"
@@ -422,20 +416,18 @@ def test_raw_grid_path_errors_match_the_numpy_path(tmp_path):
                                 (bytes(0), (0, 10), "gray8")):
         src.write_bytes(data)
         with pytest.raises(ImageReadError) as numpy_path:
-            imageio.read_raw(data, width=size[0], height=size[1], pix_fmt=pix_fmt, name=str(src))
+            sbio.read_raw(data, width=size[0], height=size[1], pix_fmt=pix_fmt, name=str(src))
         with pytest.raises(ImageReadError) as fast_path:
-            container.encode_file(src, tmp_path / "o.sbs", pattern=grid, raw_size=size, pix_fmt=pix_fmt)
+            sbio.encode_file(src, tmp_path / "o.sbs", pattern=grid, raw_size=size, pix_fmt=pix_fmt)
         assert str(fast_path.value) == str(numpy_path.value)
     src.write_bytes(bytes(4 * 3))
     with pytest.raises(OptionError, match="leaves no sample"):
-        container.encode_file(src, tmp_path / "o.sbs", pattern=SamplingPattern("grid", 9, 9, offset_x=5),
+        sbio.encode_file(src, tmp_path / "o.sbs", pattern=SamplingPattern("grid", 9, 9, offset_x=5),
                               raw_size=(4, 3), pix_fmt="gray8")
     assert not (tmp_path / "o.sbs").exists()
 
 
 def test_library_tables_keep_their_numpy_form():
-    from stereobudget.io import _images as imageio
-
-    assert container.DTYPE_CODES == {np.dtype(np.uint8): 1, np.dtype(np.uint16): 2}
-    assert imageio.RAW_PIXEL_FORMATS["gray16le"] == (1, np.dtype("<u2"), "gray")
-    assert imageio.RAW_PIXEL_FORMATS["bgr24"] == (3, np.dtype(np.uint8), "bgr")
+    assert sbio.DTYPE_CODES == {np.dtype(np.uint8): 1, np.dtype(np.uint16): 2}
+    assert sbio.RAW_PIXEL_FORMATS["gray16le"] == (1, np.dtype("<u2"), "gray")
+    assert sbio.RAW_PIXEL_FORMATS["bgr24"] == (3, np.dtype(np.uint8), "bgr")

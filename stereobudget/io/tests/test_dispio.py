@@ -7,7 +7,7 @@ import cv2
 import numpy as np
 import pytest
 
-from stereobudget.io._disparity import (disparity_preview, read_disparity, write_disparity,
+from stereobudget.io import (disparity_preview, read_disparity, write_disparity,
                                  write_preview)
 from stereobudget.errors import ImageReadError, OutputError
 

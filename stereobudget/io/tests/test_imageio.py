@@ -5,7 +5,6 @@ from __future__ import annotations
 import io
 import json
 import logging
-import os
 import struct
 import subprocess
 import tempfile
@@ -19,8 +18,8 @@ import pytest
 import tifffile
 
 from stereobudget.errors import ImageReadError, OutputError
-from stereobudget.io._images import (RAW_PIXEL_FORMATS, parse_raw_size, read_image, read_raw,
-                                  sniff_image_size, write_image)
+from stereobudget.io import (RAW_PIXEL_FORMATS, parse_raw_size, read_image, read_raw, sniff_image_size,
+                             write_image)
 
 
 def rgb_image(h=7, w=9, dtype=np.uint8, seed=0):
@@ -68,14 +67,6 @@ def test_gray_png_and_tiff_are_2d(tmp_path, dtype):
     image, order = read_image(buf.getvalue())
     assert order == "gray" and image.ndim == 2
     np.testing.assert_array_equal(image, gray)
-
-
-def test_single_channel_3d_arrays_are_squeezed():
-    # No common file format decodes to (H, W, 1) here, so check the normalisation step itself.
-    from stereobudget.io._images import _normalise
-    gray = rgb_image()[:, :, :1]
-    image, order = _normalise(gray, name="x", bgr=True)
-    assert order == "gray" and image.shape == gray.shape[:2]
 
 
 def test_16bit_rgb_tiff(tmp_path):
@@ -209,8 +200,7 @@ def test_raw_rejects_bad_sizes_and_formats():
 
 
 def test_raw_path_does_not_import_opencv_or_numba():
-    code = ("import sys, json; from stereobudget.io._images import read_raw; "
-            "import stereobudget.io._samples; "
+    code = ("import sys, json; from stereobudget.io import read_raw, read_samples; "
             "read_raw(bytes(12), width=2, height=2, pix_fmt='rgb24'); "
             "print(json.dumps([m for m in ('cv2', 'numba') if m in sys.modules]))")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True,
@@ -252,40 +242,4 @@ def test_write_image_refuses_overwrite_and_unknown_extensions(tmp_path):
 
 # --- the decoders' stderr capture under an interrupt -------------------------------------
 
-def _fd2_identity():
-    st = os.fstat(2)
-    return st.st_dev, st.st_ino
 
-
-@pytest.mark.parametrize("where", ["after the swap-in", "in the decoder", "in the final flush"])
-def test_an_interrupt_while_decoder_stderr_is_captured_leaves_fd2_restored(where, monkeypatch):
-    # While an image is decoded, fd 2 points at a temporary file.  Wherever a Ctrl-C /
-    # SIGTERM lands meanwhile, fd 2 must be stderr again when the KeyboardInterrupt leaves
-    # read_image: the command's "interrupted" line is written after it (a CI run lost it).
-    from stereobudget.io import _images as sbio
-
-    real_dup2 = os.dup2
-    calls = []
-
-    def dup2_then_interrupt(fd, fd2, *args, **kwargs):
-        real_dup2(fd, fd2, *args, **kwargs)
-        calls.append(fd2)
-        if len(calls) == 1:         # the swap-in: the signal arrives just as it returns
-            raise KeyboardInterrupt
-
-    def interrupt(*args, **kwargs):
-        raise KeyboardInterrupt
-
-    if where == "after the swap-in":
-        monkeypatch.setattr(sbio.os, "dup2", dup2_then_interrupt)
-    elif where == "in the decoder":
-        monkeypatch.setattr(sbio, "_decode_with_opencv", interrupt)
-    else:
-        monkeypatch.setattr(sbio, "_flush_quietly", interrupt)
-    before = _fd2_identity()
-    with pytest.raises(KeyboardInterrupt):
-        read_image(png_bytes(rgb_image()))
-    monkeypatch.undo()
-    assert _fd2_identity() == before
-    if where == "after the swap-in":
-        assert calls == [2, 2]      # swapped in, and back

@@ -10,7 +10,7 @@ import pytest
 
 from stereobudget.errors import CorruptHeaderError, OptionError
 from stereobudget.io import encode_file, encode_image, probe, read_samples, write_samples
-from stereobudget.io._mosaic import BAYER_PATTERNS, mosaic_image, shifted_order
+from stereobudget.io import BAYER_PATTERNS, mosaic_image, shifted_order
 from stereobudget.sampling import SamplingPattern
 
 PATTERNS = sorted(BAYER_PATTERNS)

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from stereobudget.io import SampleSet, encode_image, read_samples, write_samples
-from stereobudget.sampling._patterns import (ADAPTIVE_BASE, SamplingPattern, adaptive_split, adaptive_tile_weights,
+from stereobudget.sampling import (ADAPTIVE_BASE, SamplingPattern, adaptive_split, adaptive_tile_weights,
                                    downsample_blocks, downsample_shape, fps_positions, sample_count,
                                    sample_positions, splitmix64)
 
