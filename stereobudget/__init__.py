@@ -35,12 +35,15 @@ The library is grouped by topic; each subpackage re-exports its public names:
   with exact ground truth.
 
 Plain references, for tests and for reading, sit beside the fast paths and are named for them:
+:func:`stereobudget.cost.full_dsi_reference` (Eq. 1 layer by layer),
 :func:`stereobudget.cost.census_cost_volume_reference`,
 :func:`stereobudget.fill.sparse_joint_bilateral_reference` and
 :func:`stereobudget.fill.filled_sparse_dsi_reference` (Eqs. 2-4 summed directly),
 :func:`stereobudget.aggregate.aggregate_reference` (Yang's serial two-pass walk),
 :func:`stereobudget.aggregate.left_right_refinement_reference` (his left-right check and
-refinement) and :func:`stereobudget.aggregate.semiglobal_aggregate_reference`.
+refinement), :func:`stereobudget.aggregate.semiglobal_aggregate_reference` and
+:func:`stereobudget.synthesis.warp_reference` (the warp for Î2, gathered pixel by pixel).
+Hybrid's mix is held to the weighted mean of the Sparse fill and :func:`~stereobudget.cost.full_dsi`.
 
 The camera side (:mod:`stereobudget.io`, :mod:`stereobudget.sampling`) imports neither numba
 nor OpenCV; the decoder is loaded on first use of :func:`decode`.

@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from stereobudget.synthesis import _synthesis as synthesis
+from stereobudget import synthesis
 from stereobudget.io import encode_image
 from stereobudget.errors import MismatchError, OptionError
 from stereobudget.metrics import psnr
@@ -149,6 +149,34 @@ def test_nan_disparities_are_skipped_and_leave_holes():
     assert holes.sum() > holes_full.sum()
     assert np.isfinite(warped).all()
     assert psnr(warped, s.right.astype(np.float32), mask=~holes, peak=255) == np.inf
+
+
+def rows_of_surfaces(rng, height, width):
+    """Disparity rows of slanted surfaces with jumps both ways and a few invalid pixels, on a
+    1/1024 grid so that landing points are exact in float32 as in float64."""
+    disparity = np.empty((height, width))
+    for y in range(height):
+        edges = np.sort(rng.choice(np.arange(3, width - 3), size=4, replace=False))
+        for start, stop in zip(np.r_[0, edges], np.r_[edges, width]):
+            x = np.arange(start, stop)
+            disparity[y, start:stop] = rng.uniform(0, 9) + rng.uniform(-0.6, 0.6) * (x - start)
+    disparity = np.clip(disparity, -2, 14)
+    disparity[rng.random(disparity.shape) < 0.03] = np.nan
+    return (np.round(disparity * 1024) / 1024).astype(np.float32)
+
+
+@pytest.mark.parametrize("mode", synthesis.WARP_MODES)
+@pytest.mark.parametrize("z_tolerance", [1.0, 0.3])
+@pytest.mark.parametrize("seed", range(3))
+def test_warp_is_the_gathered_reference(mode, z_tolerance, seed):
+    rng = np.random.default_rng(seed)
+    left = rng.uniform(0, 255, (7, 41, 3)).astype(np.float32)
+    disparity = rows_of_surfaces(rng, 7, 41)
+    warped, holes = synthesis.warp_left_to_right(left, disparity, mode=mode, z_tolerance=z_tolerance)
+    expected, expected_holes = synthesis.warp_reference(left, disparity, mode=mode, z_tolerance=z_tolerance)
+    np.testing.assert_array_equal(holes, expected_holes)
+    # float32 sums of a few weighted colours against float64 ones
+    np.testing.assert_allclose(warped, expected, rtol=0, atol=2e-3)
 
 
 def test_warp_rejects_unknown_mode_and_wrong_shape():
