@@ -206,12 +206,6 @@ def _seven_taps(out, rows, first, step, kernel):
         out[i] = (((((k0 * r0[i] + k1 * r1[i]) + k2 * r2[i]) + k3 * r3[i]) + k4 * r4[i]) + k5 * r5[i]) + k6 * r6[i]
 
 
-@njit(cache=True, inline="always")
-def _zero_row(out):
-    for ch in range(out.shape[0]):
-        out[ch] = 0.0
-
-
 @njit(cache=True, parallel=True)
 def _blur_grid_rows(src, dst, spatial, kernel_s, kernel_r, blocks):
     """``dst`` = ``src`` (GY, GX, GZ, K) blurred along y and x by ``kernel_s``, then along z
