@@ -12,6 +12,7 @@
 from __future__ import annotations
 
 import ast
+import re
 from pathlib import Path
 
 import pytest
@@ -129,11 +130,22 @@ def test_modules_import_each_other_without_cycles():
             visit(node)
 
 
+_DOTTED_PACKAGE_PATH = re.compile(r"\bstereobudget(?:\.\w+)+")
+
+
 def _private_names(path: Path) -> set[str]:
-    """Private package modules and private attributes a test file names."""
+    """Private package modules and private attributes a test file names.
+
+    Imports and attribute accesses count, and so do strings: a module path given to
+    ``importlib`` or written into a child process's code (the file's docstring excepted).
+    """
     tree = ast.parse(path.read_text(encoding="utf-8"))
+    docstring = ast.get_docstring(tree, clean=False)
     names = set()
     for node in ast.walk(tree):
+        if isinstance(node, ast.Constant) and isinstance(node.value, str) and node.value != docstring:
+            for dotted in _DOTTED_PACKAGE_PATH.findall(node.value):
+                names.update(part for part in dotted.split(".") if part.startswith("_") and not part.startswith("__"))
         if isinstance(node, ast.ImportFrom) and node.module and node.module.split(".")[0] == "stereobudget":
             names.update(part for part in node.module.split(".") if part.startswith("_"))
             names.update(alias.name for alias in node.names

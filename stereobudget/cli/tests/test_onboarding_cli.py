@@ -1,4 +1,5 @@
-"""First steps of a new user, in real processes: the first-compile notice and shell completion."""
+"""First steps of a new user, in real processes: shell completion (the first-compile notice is tested in
+_kernels/tests/test_first_run.py)."""
 
 from __future__ import annotations
 
@@ -10,17 +11,6 @@ import sys
 def run(code_or_args, *, env=None, module=False):
     args = [sys.executable, "-m", *code_or_args] if module else [sys.executable, "-c", code_or_args]
     return subprocess.run(args, capture_output=True, text=True, timeout=300, env=dict(os.environ, **(env or {})))
-
-
-def test_empty_kernel_cache_is_announced_once(tmp_path):
-    code = ("import logging, sys; logging.basicConfig(stream=sys.stderr, format='%(message)s');"
-            "from stereobudget._kernels._first_run import announce_first_compile, kernels_cached;"
-            "print(kernels_cached()); print(announce_first_compile())")
-    fresh = run(code, env={"NUMBA_CACHE_DIR": str(tmp_path / "empty")})
-    assert fresh.returncode == 0, fresh.stderr
-    assert fresh.stdout.split() == ["False", "True"]
-    lines = fresh.stderr.splitlines()
-    assert len(lines) == 1 and lines[0].startswith("compiling kernels, first run only, ~") and lines[0].endswith(" s")
 
 
 def test_bash_completion_of_options_and_choices():
@@ -36,13 +26,3 @@ def test_bash_completion_of_options_and_choices():
     assert [line.split(",")[1] for line in methods.stdout.splitlines()] == ["hybrid", "sparse", "downsample", "full"]
 
 
-def test_after_a_default_decode_the_kernels_count_as_cached():
-    # The notice must not reappear once the default decoder has run (it probes the
-    # modules that decoder compiles, not only the paper's tree route).
-    decode = ("import numpy as np; from stereobudget import decode; from stereobudget.io import encode_image;"
-              "from stereobudget.sampling import SamplingPattern; from stereobudget.scenes import make_scene;"
-              "s = make_scene('slanted', height=48, width=64, max_disp=8);"
-              "decode(s.left, encode_image(s.right, pattern=SamplingPattern('grid', 5, 5)), max_disp=8)")
-    assert run(decode).returncode == 0
-    probe = run("from stereobudget._kernels._first_run import kernels_cached; print(kernels_cached())")
-    assert probe.returncode == 0 and probe.stdout.split() == ["True"], probe.stderr

@@ -51,7 +51,7 @@ def test_png_round_trip_within_quantisation(tmp_path, disparity):
 def test_png_clips_out_of_range_values_and_logs(tmp_path, caplog):
     d = np.array([[-3.0, 0.5, 300.0]], dtype=np.float32)
     path = tmp_path / "clip.png"
-    with caplog.at_level(logging.WARNING, logger="stereobudget.io._disparity"):
+    with caplog.at_level(logging.WARNING, logger="stereobudget"):
         write_disparity(path, d)
     assert "clipped 1 negative and 1 larger" in caplog.text
     raw = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
