@@ -4,9 +4,11 @@ from __future__ import annotations
 
 import numpy as np
 
+from ._cost import DEFAULT_TRUNCATION
+
 
 def full_dsi_reference(left: np.ndarray, right: np.ndarray, *, min_disp: int, num_disp: int,
-                       truncation: float = 15.0, grad_weight: float = 0.0,
+                       truncation: float = DEFAULT_TRUNCATION, grad_weight: float = 0.0,
                        grad_truncation: float = 2.0) -> np.ndarray:
     """Eq. (1) computed directly in float64, one disparity layer at a time.
 

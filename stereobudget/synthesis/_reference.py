@@ -11,8 +11,8 @@ import math
 
 import numpy as np
 
-#: Splat weights at or below this do not reach a right pixel (as in the fast splat).
-SPLAT_MIN_WEIGHT = 1e-3
+# Splat weights at or below this do not reach a right pixel: the fast splat's rule.
+from ._synthesis import _MIN_SPLAT_WEIGHT, DEFAULT_Z_TOLERANCE
 
 
 def _linear_pieces(row_disp, z_tolerance):
@@ -43,7 +43,7 @@ def _blend(candidates, shown, z_tolerance):
 
 
 def warp_reference(left: np.ndarray, disparity: np.ndarray, *, mode: str = "linear",
-                   z_tolerance: float = 1.0):
+                   z_tolerance: float = DEFAULT_Z_TOLERANCE):
     """The forward warp of :func:`stereobudget.synthesis.warp_left_to_right`, pixel by pixel.
 
     Parameters
@@ -91,13 +91,16 @@ def warp_reference(left: np.ndarray, disparity: np.ndarray, *, mode: str = "line
                 x0 = math.floor(x - d)
                 t = (x - d) - x0
                 for p, weight in ((x0, 1 - t), (x0 + 1, t)):
-                    if 0 <= p < w and weight > SPLAT_MIN_WEIGHT:
+                    if 0 <= p < w and weight > _MIN_SPLAT_WEIGHT:
                         reaching[p].append((d, left[y, x], weight))
         elif mode == "nearest":
             for x in range(w):
                 d = disparity[y, x]
-                if math.isfinite(d) and 0 <= math.floor(x - d + 0.5) < w:
-                    reaching[math.floor(x - d + 0.5)].append((d, left[y, x], 1.0))
+                if not math.isfinite(d):
+                    continue
+                p = math.floor(x - d + 0.5)
+                if 0 <= p < w:
+                    reaching[p].append((d, left[y, x], 1.0))
         else:
             raise ValueError(f"unknown warp mode {mode!r}")
         for p, candidates in enumerate(reaching):

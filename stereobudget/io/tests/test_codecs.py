@@ -10,10 +10,10 @@ from hypothesis import strategies as st
 
 from stereobudget.errors import CorruptHeaderError, CorruptPayloadError, OptionError, UnsupportedVersionError
 from stereobudget import io as sbio
-from stereobudget.io import HEADER_SIZE_V1_0, BUDGET_DROPPED_BITS, encode_image, fit_budget, probe, read_samples, write_samples
+from stereobudget.io import BUDGET_DROPPED_BITS, encode_image, fit_budget, probe, read_samples, write_samples
 from stereobudget.sampling import SamplingPattern
 
-HEADER = HEADER_SIZE_V1_0
+HEADER = sbio.HEADER_SIZE_V1_0
 # The coding block of docs/format.md at offset 40: codec, value bits, quality, zero, values CRC-32, reserved.
 CODING_BLOCK = struct.Struct("<BBBBI8s")
 LOSSLESS = ("raw", "deflate", "webp_lossless", "jxl_lossless")
