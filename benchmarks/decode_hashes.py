@@ -8,7 +8,8 @@ Run it on two source trees and compare the JSON files::
 
 Every synthetic scene kind (``stereobudget.scenes.SCENE_KINDS``) at grid strides 5 and 3 and
 a jittered pattern, decoded by Sparse and by each Hybrid route; the full pair on two kinds;
-and Teddy at strides 3 and 5 when ``../shared/data/middlebury`` is there.
+and Teddy at strides 3 and 5 when ``../shared/data/middlebury`` is there.  Each default-route
+decode also digests the right image recovered from it (``recover_right``, key suffix ``/right``).
 """
 
 from __future__ import annotations
@@ -24,6 +25,7 @@ from stereobudget.decoding import DecoderParams, decode
 from stereobudget.io import encode_image, read_image
 from stereobudget.sampling import SamplingPattern
 from stereobudget.scenes import SCENE_KINDS, make_scene
+from stereobudget.synthesis import recover_right
 
 from middlebury import default_data_dir
 
@@ -49,7 +51,10 @@ def main() -> None:
             for method, aggregation in ROUTES:
                 result = decode(scene.left, samples, max_disp=28, method=method,
                                 params=DecoderParams(hybrid_aggregation=aggregation))
-                digests[f"{kind}/{pattern.kind}{pattern.stride_x}/{method}/{aggregation}"] = digest(result.disparity)
+                key = f"{kind}/{pattern.kind}{pattern.stride_x}/{method}/{aggregation}"
+                digests[key] = digest(result.disparity)
+                if method == "hybrid" and aggregation == "semiglobal_census":
+                    digests[key + "/right"] = digest(recover_right(scene.left, result.disparity, samples))
     for kind in SCENE_KINDS[:2]:
         scene = make_scene(kind, height=90, width=140, max_disp=24, seed=3)
         full = encode_image(scene.right, pattern=SamplingPattern("grid", 1, 1))
@@ -60,7 +65,9 @@ def main() -> None:
         for stride in (3, 5):
             samples = encode_image(right, pattern=SamplingPattern("grid", stride, stride))
             for method in ("sparse", "hybrid"):
-                digests[f"teddy/{stride}/{method}"] = digest(decode(left, samples, max_disp=60, method=method).disparity)
+                disparity = decode(left, samples, max_disp=60, method=method).disparity
+                digests[f"teddy/{stride}/{method}"] = digest(disparity)
+                digests[f"teddy/{stride}/{method}/right"] = digest(recover_right(left, disparity, samples))
     Path(args.output).write_text(json.dumps(digests, indent=1, sort_keys=True) + "\n")
     print(f"{len(digests)} decodes -> {args.output}")
 
