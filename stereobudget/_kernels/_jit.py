@@ -4,7 +4,7 @@ Every array view a numba function makes (``row = volume[v]``, ``buffer[x]``) tak
 reference on the array's memory: an atomic increment, and a decrement when the view
 dies.  numba's pruning pass drops such pairs only within simple control flow; in the
 down pass of a tree walk, with its two branches, a pair per node stayed (and half the
-pass's time: measured with benchmarks/bench.py).  Kernels that allocate nothing and
+pass's time: measured with scripts/bench.py).  Kernels that allocate nothing and
 return no array can be compiled without reference counting at all (the arrays they are
 given are kept alive by their caller); the parallel kernels that need scratch arrays
 allocate them and hand the work to such a kernel.

@@ -16,7 +16,7 @@ largest first when they do not all fit); larger ones (the cost volumes of frames
 size begins (:func:`frame`: they are dropped before its volumes are allocated, so stale
 volumes are never held beside new ones).  New memory costs
 the most there: 1-4 MP decodes took 9-35 % less CPU time on reused volumes
-(measured with benchmarks/bench.py --sections reuse).  :func:`spare_bytes` tells the memory check what
+(measured with scripts/bench.py --sections reuse).  :func:`spare_bytes` tells the memory check what
 is held; :func:`release` drops everything.
 
 The smaller temporaries (trees, grids, keys: ~2000 pages a Hybrid decode of Teddy) can be
@@ -80,7 +80,7 @@ def keep_freed_memory() -> bool:
 
     glibc returns large freed blocks to the system, so the next decode's arrays are
     fresh pages that fault on first touch (~2000 faults and 5-15 ms per Hybrid decode of
-    Teddy on the benchmark machine, benchmarks/bench.py).  This raises glibc's mmap
+    Teddy on the benchmark machine, scripts/bench.py).  This raises glibc's mmap
     threshold to its maximum and its trim threshold to :data:`SPARE_BYTES`, so blocks are
     reused instead; the process keeps up to that much freed memory.  The setting lasts
     for the rest of the process (glibc cannot restore its adaptive threshold), so only an

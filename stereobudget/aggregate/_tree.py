@@ -98,7 +98,7 @@ class TreeLayout:
     is usually the row just before it), so the walk streams through memory instead of
     fetching each pixel's row from a data-dependent address: on Teddy the aggregation
     takes about half the time of the same walk over a pixel-ordered volume
-    (benchmarks/bench.py).  Every volume a decoder aggregates is written in this order by
+    (scripts/bench.py).  Every volume a decoder aggregates is written in this order by
     the kernel that produces it: Sparse's fill and both views' costs
     (:func:`stereobudget.aggregate.pair_cost_rows`); the refinement cost is computed by the
     walk itself, row by row in this order (:func:`distance_rows_winners`).
@@ -1366,7 +1366,7 @@ def aggregate_two_rows_winners(first: np.ndarray, first_layout: TreeLayout, seco
     other, so each gets the serial walk on one of numba's threads, instead of one after
     the other with each split between two threads: on two cores the split walks share
     the cores and the memory bandwidth anyway, and pay the split's bookkeeping (Teddy's
-    pair inside a Hybrid decode: 32 -> 27 ms, benchmarks/bench.py).  The serial walk
+    pair inside a Hybrid decode: 32 -> 27 ms, scripts/bench.py).  The serial walk
     sums in plain tree order, so a value can differ from the split walk's in the last bit.
 
     Parameters

@@ -27,7 +27,7 @@ LIMIT_SHARE = 0.05
 #: ``samples_disagree``: PSNR (dB) at the samples of I1 warped by the disparity, below
 #: which the decode is taken to be wrong.  Decodes with the true range give 19.4-33.6 dB
 #: on the 27 Middlebury and realdev scenes (KITTI's exposure differences the lowest), one
-#: scene's I1 with another's samples 11.7 dB (benchmarks/auto_range.py --calibrate).
+#: scene's I1 with another's samples 11.7 dB (scripts/auto_range.py --calibrate).
 MIN_SAMPLE_PSNR = 16.0
 #: ``swapped``: share of the confident matches with negative disparity (and at least
 #: twice the share of positive ones).

@@ -102,7 +102,7 @@ class Decoder:
     dropped when a decode of another frame size begins; the memory limit counts them as
     available), and glibc is let keep freed blocks mapped, so the next decode's arrays do
     not page-fault afresh.  On the benchmark machine this spares 1-4 MP decodes 9-35 % of
-    their CPU time (``benchmarks/bench.py --sections reuse``).  ``sb-decode`` and the batch
+    their CPU time (``scripts/bench.py --sections reuse``).  ``sb-decode`` and the batch
     runners decode this way (:func:`shared_decoder`).
 
     Parameters

@@ -74,7 +74,7 @@ class DecoderParams:
         per range sigma (:func:`stereobudget.fill.grid_geometry`).  One cell per
         sigma is Paris & Durand's sampling rate; the grid blur is narrowed so the
         effective kernel keeps its sigma, and the sweep recorded in the commit history
-        (``benchmarks/sweep.py``) finds every scene within 0.2 pp of 2 cells per
+        (``scripts/sweep.py``) finds every scene within 0.2 pp of 2 cells per
         sigma at strides 3, 5 and 8, for 1/8 of the grid cells.
     hybrid_aggregation : {"semiglobal_census", "semiglobal", "tree"}
         How Hybrid matches and aggregates.  ``"semiglobal_census"``: the Sparse fill
@@ -82,7 +82,7 @@ class DecoderParams:
         the low-passed I1 and the low-passed interpolation of the samples, summed along
         the semi-global paths (P2 = ``hybrid_sgm_p2``), checked left against right on the
         diagonal, rejected pixels filled from their row.  On the 23 real pairs
-        (``benchmarks/evaluate_real.py``) 25.8 % bad pixels at stride 5 and 19.6 % at
+        (``scripts/evaluate_real.py``) 25.8 % bad pixels at stride 5 and 19.6 % at
         stride 3, against 31.2 % at stride 5 for ``"tree"`` (the paper's route: the Sparse
         fill mixed with absolute differences of the low-passed pair, Yang's tree, check
         and refinement), which stays better on the four paper scenes (6.1 % against 7.9 %
@@ -92,14 +92,14 @@ class DecoderParams:
         Cost and aggregation of the full pair.  ``"census"``: 5x5 census, semi-global
         aggregation (:mod:`stereobudget.decoding._full`); on the 23 real pairs of the
         development set 16.8 % bad pixels against OpenCV SGBM's 20.8 % and the tree on
-        absolute differences' 26 % (``benchmarks/evaluate_real.py``; docs/results.md).
+        absolute differences' 26 % (``scripts/evaluate_real.py``; docs/results.md).
         ``"ad"``: the paper's Eq. (1) cost on the tree (Yang), which assumes equal
         exposure in both cameras.
     sgm_p1, sgm_p2 : float
         Semi-global penalties of a one-level and of a larger disparity change, as
         multiples of the cost volume's typical margin (the data term's own scale, so the
         same multiples serve every scene, size and cost); the sweep is in docs/results.md
-        (``benchmarks/evaluate_real.py --param sgm_p2=4``).
+        (``scripts/evaluate_real.py --param sgm_p2=4``).
     hybrid_sgm_p2 : float
         P2 of Hybrid's semi-global aggregation.  A sample grid's filled cost separates
         disparities less sharply than a full pair's census, so its margin calls for a
@@ -116,7 +116,7 @@ class DecoderParams:
         image's own tree (Yang); ``"diagonal"`` reads it off the left view's aggregated
         costs, normalised by each pixel's tree support (Hirschmüller's search), which
         saves a tree and an aggregation but lets more errors pass the check: measured
-        0.3-0.5 pp worse on the 9-scene mean, up to 2.5 pp on Teddy (benchmarks/bench.py).
+        0.3-0.5 pp worse on the 9-scene mean, up to 2.5 pp on Teddy (scripts/bench.py).
     """
 
     sigma_r: float = 15.0

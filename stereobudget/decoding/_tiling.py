@@ -20,7 +20,7 @@ log = logging.getLogger("stereobudget")
 #: Rows decoded above and below each band and then dropped.  The sparse fill reaches
 #: ~4 sigma_s (40 px at stride 5), but the tree aggregation and, above all, Hybrid's
 #: left-right refinement are global: unstable pixels take disparities from far along
-#: the tree.  benchmarks/tile_overlap.py measures the seams against the overlap (Teddy, Cones,
+#: the tree.  scripts/tile_overlap.py measures the seams against the overlap (Teddy, Cones,
 #: 1x and 2x, bands of 96 / 192 rows): 64 rows suffice for Sparse but cost Hybrid up to
 #: 0.7 pp; with 128 the bad-pixel rate stays within 0.05 pp of untiled in all 8 cases.
 DEFAULT_TILE_OVERLAP = 128

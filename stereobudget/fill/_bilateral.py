@@ -18,7 +18,7 @@ contiguous so slicing reads one vector per corner.
 
 Accuracy: splatting and slicing with hat functions each add 1/6 cell^2 of variance per
 axis; the blur is narrowed by exactly that amount so the effective kernel has the
-requested sigma.  ``tests/test_bilateral.py`` states the agreement with a brute-force
+requested sigma.  ``tests/fill/test_bilateral.py`` states the agreement with a brute-force
 filter.
 """
 

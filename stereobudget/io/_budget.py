@@ -18,7 +18,7 @@ BUDGET_QUALITIES = (95, 90, 85, 80, 75)
 #: Low bits a lossless coding may drop, one at a time, when ``--size`` comes without
 #: ``--bits``: a denser grid of coarser values decodes better than a sparser exact one
 #: until about 5 bits.  Over the 27 scenes of both sets at budgets of 2-11 % (Hybrid,
-#: ``benchmarks/budget_bits.py``, docs/results.md), allowing 3 dropped bits rather than 2
+#: ``scripts/budget_bits.py``, docs/results.md), allowing 3 dropped bits rather than 2
 #: lowers the mean bad pixels on realdev from 21.11 to 20.52 % and on Middlebury from 6.02
 #: to 5.94 %; a fourth costs again (weak texture drowns in the quantisation).  Not at
 #: stride 1, where the full-pair decoder matches every pixel.

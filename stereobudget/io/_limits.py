@@ -63,7 +63,7 @@ _FLOAT32 = 4
 #: float32 copies of I1 (and of the interpolated right image), the gray guide, the
 #: x-gradients, the two trees while they are built (edge keys, sorted edges, order,
 #: parent, weight), the low-pass grids of Hybrid and the disparity maps.  Measured
-#: peaks stay below this (see tests/test_robustness.py and docs/errors.md).
+#: peaks stay below this (see tests/cli/test_robustness.py and docs/errors.md).
 _PER_PIXEL_OVERHEAD = 192
 #: Safety margin on the volume terms (allocator slack, numba thread-local buffers).
 _VOLUME_MARGIN = 1.10
@@ -84,7 +84,7 @@ def volume_layers(num_disp: int) -> int:
     independent of the rest) but never allowed to win.  Rows of whole 32-byte vectors
     leave no scalar tail in any per-pixel loop and keep the rows of 64 layers on cache
     lines: Teddy's 61 disparities decode faster as 64 layers than as 61 (the cost kernel
-    ~14 %, benchmarks/bench.py).
+    ~14 %, scripts/bench.py).
     """
     num_disp = int(num_disp)
     return -(-num_disp // LAYER_QUANTUM) * LAYER_QUANTUM
@@ -133,7 +133,7 @@ def estimate_decode_memory(height: int, width: int, num_disp: int, method: str, 
 
     A margin of 10 % on the volume terms, 192 bytes per pixel for images, trees and
     disparity maps, and 16 MiB of fixed allowance are added.  Measured peaks
-    (``benchmarks/measure_decode_memory.py``: peak RSS above the resting RSS after JIT
+    (``scripts/measure_decode_memory.py``: peak RSS above the resting RSS after JIT
     warm-up) are 56-85 % of the estimate at 450x375 and 1152x900; the grid terms are
     those of the general fill (jitter, fps), looser for regular grids (docs/errors.md).
 

@@ -258,7 +258,7 @@ def warp_left_to_right(left: np.ndarray, disparity: np.ndarray, *, mode: str = D
 
     Notes
     -----
-    Measured with ``python benchmarks/reproduce_synthesis.py --compare-warps`` (mean of
+    Measured with ``python scripts/reproduce_synthesis.py --compare-warps`` (mean of
     the four Middlebury scenes, 8-bit RGB, decoder ``hybrid``; "common" = right pixels
     that every rule and the ground-truth warp reach, "non-occ." / "all" = after
     :func:`inpaint_from_samples` with a stride-3 grid, over the pixels the ground-truth
@@ -280,7 +280,7 @@ def warp_left_to_right(left: np.ndarray, disparity: np.ndarray, *, mode: str = D
     (``splat`` must either leave cracks or let a weight-0.1 splat fill them, which
     also fills the first disoccluded pixel with foreground).  Tolerances 0.5 and 2 were
     measured up to 0.1 dB worse than 1 with decoded disparities.  On the synthetic
-    scenes with exact disparity (``tests/test_synthesis.py``), ``linear`` is the only
+    scenes with exact disparity (``tests/synthesis/test_synthesis.py``), ``linear`` is the only
     rule above 40 dB on every fractional-disparity scene.
     """
     if mode not in WARP_MODES:
@@ -444,7 +444,7 @@ def enhance_with_samples(image: np.ndarray, holes: np.ndarray, samples: SampleSe
     disagree among themselves (sub-pixel misregistration of fine texture: each sample's
     error is its own), their average is mostly noise and adding it *lowers* the PSNR
     (Venus at stride 5 with the ``hybrid`` disparity: -0.07 dB in the end, against
-    +0.17 dB with the shrinkage; ``benchmarks/reproduce_synthesis.py``, column "paper JBF").  So by default the correction ``c`` is shrunk by the
+    +0.17 dB with the shrinkage; ``scripts/reproduce_synthesis.py``, column "paper JBF").  So by default the correction ``c`` is shrunk by the
     empirical Wiener factor ``c^2 / (c^2 + var / shrinkage)``, where ``var`` is the
     bilateral-weighted variance of the differences around the pixel (same filter, second
     channel set): a consistent correction (wrong disparity over a region, a photometric
