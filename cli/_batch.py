@@ -104,7 +104,7 @@ def plan_encode(images, output: str, *, pattern, raw_size, pix_fmt, overwrite: b
     """
     from stereobudget.batch._inputs import (IMAGE_EXTENSIONS, check_distinct_outputs, expand_inputs,
                                             expand_template, has_template)
-    from stereobudget.batch._jobs import EncodeJob
+    from stereobudget.pipeline import EncodeJob
 
     templated = has_template(output, "-o")
     inputs = expand_inputs(images, extensions=None if raw_size is not None else IMAGE_EXTENSIONS,

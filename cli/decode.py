@@ -1,8 +1,8 @@
 """``sb-decode``: the host's job -- left image + sample file -> disparity map (+ right image).
 
-A thin layer over :mod:`stereobudget.batch` (:func:`~stereobudget.batch.decode_file` for
-one pair, :func:`~stereobudget.batch.decode_job` and :func:`~stereobudget.batch.run_jobs`
-for many).  One pair keeps the error's own exit code; a batch (several pairs, or output
+A thin layer over :mod:`stereobudget.pipeline` (:func:`~stereobudget.pipeline.decode_file` for
+one pair) and :mod:`stereobudget.batch` (:func:`~stereobudget.batch.decode_job` and
+:func:`~stereobudget.batch.run_jobs` for many, :func:`~stereobudget.batch.decode_stream` for frames).  One pair keeps the error's own exit code; a batch (several pairs, or output
 templates) reports each failed pair and exits 1 if any failed.
 """
 
@@ -208,7 +208,8 @@ def decode_command(inputs, left_dir, samples_dir, manifest, max_disp, min_disp, 
       cam | sb-encode - --raw 640x480 --pix-fmt gray8 -o - \\
           | sb-decode 'L/{index:05d}.png' - --max-disp 60 --disparity - > d.pfms
     """
-    from stereobudget.batch import DecodeJob, check_distinct_outputs, decode_file, decode_job, has_template
+    from stereobudget.batch import check_distinct_outputs, decode_job, has_template
+    from stereobudget.pipeline import DecodeJob, decode_file
 
     if max_memory is not None:
         from stereobudget.io import parse_size

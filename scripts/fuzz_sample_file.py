@@ -6,7 +6,7 @@ oversized header lengths, absurd dimensions, random bytes, payloads re-checksumm
 valid files of another image...) and every case is fed to
 
 1. :func:`stereobudget.io.read_samples`,
-2. the decode path of ``sb-decode`` in-process (:func:`stereobudget.batch.decode_file`,
+2. the decode path of ``sb-decode`` in-process (:func:`stereobudget.pipeline.decode_file`,
    which reads, validates, decodes and writes the disparity map),
 3. every ``--cli-every``-th case: ``sb-decode`` through click's ``CliRunner``,
 4. every ``--subprocess-every``-th case: ``sb-decode`` as a real subprocess.
@@ -332,7 +332,7 @@ def reader_outcome(data: bytes) -> str:
 
 def decode_outcome(sbs_path: Path, left: str, out: Path) -> tuple[str, object]:
     """Run sb-decode's per-pair path in-process; ``(outcome, exception or None)``."""
-    from stereobudget.batch import DecodeJob, decode_file
+    from stereobudget.pipeline import DecodeJob, decode_file
 
     job = DecodeJob(left=left, samples=str(sbs_path), disparity=str(out), max_disp=MAX_DISP,
                     overwrite=True)

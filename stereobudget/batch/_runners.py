@@ -15,7 +15,7 @@ from typing import Callable, Iterable, Iterator
 
 from ..io._atomic import STDIO
 from ..errors import OptionError
-from ._jobs import DecodeJob
+from ..pipeline._jobs import DecodeJob, EncodeJob
 from ._worker import _worker_init
 
 log = logging.getLogger("stereobudget")
@@ -239,4 +239,4 @@ def run_jobs(jobs: Iterable, fn: Callable, *, workers: int | None = None, schedu
         yield from report(_run_local_pool(jobs, fn, min(workers, len(jobs)), threads))
 
 
-__all__ = ["default_jobs", "run_jobs"]
+__all__ = ["default_jobs", "run_jobs", "EncodeJob", "DecodeJob"]

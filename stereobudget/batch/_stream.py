@@ -29,8 +29,8 @@ from ..errors import MismatchError, OptionError
 from ..io._atomic import STDIO, atomic_write, display_name, write_output_bytes
 from ..io._stream import frame_label, raw_frames, sample_frames
 from ._inputs import IMAGE_EXTENSIONS, expand_inputs, expand_template, uses_field
-from ._jobs import DecodeJob
-from ._outputs import _prepare_outputs, check_job_outputs
+from ..pipeline._jobs import DecodeJob, decode_arrays
+from ..pipeline._outputs import check_job_outputs, prepare_outputs
 
 log = logging.getLogger("stereobudget")
 
@@ -117,12 +117,12 @@ def encode_stream(sources: Iterable[str], output: str, *, pattern, raw_size: tup
     if output == STDIO or per_frame:
         for index, target, data, report in frames():
             if per_frame:
-                _prepare_outputs([target], sources, overwrite=overwrite, make_dirs=True, replace_existing=False)
+                prepare_outputs([target], sources, overwrite=overwrite, make_dirs=True, replace_existing=False)
             write_output_bytes(target, data, overwrite=overwrite)
             yield reported(index, report)
         return
     # One stream file: nothing appears at the path until the last frame is in.
-    _prepare_outputs([output], sources, overwrite=overwrite, make_dirs=False)
+    prepare_outputs([output], sources, overwrite=overwrite, make_dirs=False)
     items = []
     with atomic_write(output, overwrite=overwrite) as handle:
         for index, _, data, report in frames():
@@ -184,19 +184,19 @@ def decode_stream(left: str, samples: str, *, disparity: str | None = None, prev
         A file of concatenated ``.sbs`` frames, or ``-`` for standard input (read one frame
         at a time, so an endless pipe is decoded as it arrives).
     disparity, preview, right : str, optional
-        Outputs, as in :class:`~stereobudget.batch.DecodeJob`.  A template using ``{index}``
+        Outputs, as in :class:`~stereobudget.pipeline.DecodeJob`.  A template using ``{index}``
         (plus ``{stem}``/``{name}``/``{parent}`` of the frame's left image) writes one file
         per frame; ``-`` writes every frame to standard output, one image after another.
         A name that two frames would share (a plain name, or ``{stem}`` of one left image
         for all) is an error at the second of them.
     max_disp, min_disp, method, overwrite, max_memory, disparity_format
-        As in :class:`~stereobudget.batch.DecodeJob`; ``max_disp="auto"`` estimates the
+        As in :class:`~stereobudget.pipeline.DecodeJob`; ``max_disp="auto"`` estimates the
         range of every frame on its own.
 
     Yields
     ------
     dict
-        The summary of :func:`stereobudget.batch.decode_file` for the frame, with ``frame``.
+        The summary of :func:`stereobudget.pipeline.decode_file` for the frame, with ``frame``.
 
     Raises
     ------
@@ -204,7 +204,6 @@ def decode_stream(left: str, samples: str, *, disparity: str | None = None, prev
         The first problem, naming its frame; earlier frames have been written.
     """
     from ..io._samples import read_samples
-    from ._jobs import decode_arrays
 
     templates = {"disparity": disparity, "preview": preview, "right": right}
     lefts = _LeftFrames(left)
@@ -231,7 +230,7 @@ def decode_stream(left: str, samples: str, *, disparity: str | None = None, prev
                         overwrite=overwrite, max_memory=max_memory, disparity_format=disparity_format,
                         **outputs)
         check_job_outputs(job)
-        replace = _prepare_outputs(list(job.outputs.values()), [left_path, *inputs], overwrite=overwrite,
+        replace = prepare_outputs(list(job.outputs.values()), [left_path, *inputs], overwrite=overwrite,
                                    make_dirs=True, replace_existing=False)
         t = time.perf_counter()
         left_path, left_image = lefts.read(index)

@@ -176,7 +176,7 @@ def shared_decoder() -> Decoder:
     """The process's own open :class:`Decoder`, made on first call and never closed.
 
     For programs that decode from start to end of their process: ``sb-decode`` and the
-    workers of the batch runners (:func:`stereobudget.batch.decode_file`).  A library that
+    workers of the batch runners (:func:`stereobudget.pipeline.decode_file`).  A library that
     only sometimes decodes should use a ``with Decoder():`` block instead, which gives the
     memory back at its end.
     """

@@ -5,7 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from stereobudget.batch import DecodeJob, decode_file, decode_stream, encode_stream, expand_template
+from stereobudget.batch import decode_stream, encode_stream, expand_template
+from stereobudget.pipeline import DecodeJob, decode_file
 from stereobudget.errors import MismatchError, OptionError, TruncatedFileError
 from stereobudget.io import encode_file, read_disparity, sample_frames
 from stereobudget.sampling import SamplingPattern

@@ -201,7 +201,7 @@ def test_reader_fuzz_ends_in_documented_errors(case):
 @settings(max_examples=25, deadline=None, suppress_health_check=list(HealthCheck), derandomize=True)
 @given(case=mutated_sample_files())
 def test_decode_path_fuzz_agrees_with_the_reader(case, left_files, tmp_path_factory):
-    from stereobudget.batch import DecodeJob, decode_file
+    from stereobudget.pipeline import DecodeJob, decode_file
     from stereobudget.io import read_disparity
 
     index, data = case

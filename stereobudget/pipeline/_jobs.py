@@ -1,45 +1,38 @@
-"""Per-file jobs: what one encode or decode of a batch is, and doing it.
+"""One pair, one file, one frame: the encode and decode paths every front end calls.
 
 :class:`EncodeJob` / :class:`DecodeJob` describe one file's work with plain, picklable
-values; :func:`encode_job` / :func:`decode_job` do it and *never raise* for bad input:
-they return a small JSON-able dict with ``status`` ``"ok"``, ``"skipped"`` or
-``"failed"`` (plus ``error``, ``error_class`` and ``exit_code`` on failure).
+values.  :func:`encode_one` and :func:`decode_file` do it and raise on any problem (errors
+keep their class and exit code); :func:`decode_arrays` is the part of a decode after
+reading, which a frame stream calls with frames it has read itself.  ``sb-encode`` and
+``sb-decode`` call these for a single file, the batch items
+(:func:`stereobudget.batch.encode_job`, :func:`stereobudget.batch.decode_job`) wrap them
+with the up-to-date rule, and :func:`stereobudget.batch.decode_stream` calls
+:func:`decode_arrays` frame by frame.
 
-Up-to-date rule: in a batch, each output gets a record of what made it (tool version,
-inputs' paths, sizes and times, options, decoder parameters: :mod:`stereobudget.batch._recipes`);
-a job whose outputs all exist with the record the job would write is skipped, any other
-is redone (its result says why, under ``redone``) and its outputs are replaced.
-``overwrite=True`` redoes every job.  Outputs are always written atomically, so an
-interrupted batch leaves complete outputs and no partial ones.
+Outputs are checked before any input is read and always written atomically; the
+``after_write`` hook of a job runs inside the same uninterruptible step as the writes
+(a batch records there what made the outputs).
 
-This module imports neither numba nor OpenCV: the camera-side ``sb-encode`` uses it.
+This module imports neither numba nor OpenCV at import time: the camera-side
+``sb-encode`` uses it.
 """
 
 from __future__ import annotations
 
 import logging
-import os
 import time
 from dataclasses import dataclass
+from typing import Callable, Iterable
 
 from ..io._atomic import STDIO, display_name, interrupts_deferred
-from ..errors import MemoryLimitError, OptionError, StereoBudgetError
+from ..errors import MemoryLimitError, OptionError
 from ..decoding._methods import DEFAULT_METHOD
-from ._outputs import _prepare_outputs, check_job_outputs
-from ._recipes import make_recipe, recipe_difference, write_recipes
-from ._worker import _in_job, _limit_numba_threads
+from ._outputs import check_job_outputs, prepare_outputs
+
+#: Called with a job's output paths once they are written, before an interrupt can land.
+AfterWrite = Callable[[Iterable[str]], None]
 
 log = logging.getLogger("stereobudget")
-
-
-def _failure(exc: BaseException) -> dict:
-    if isinstance(exc, StereoBudgetError):
-        return {"error": str(exc), "error_class": type(exc).__name__, "exit_code": exc.exit_code}
-    if isinstance(exc, MemoryError):
-        return {"error": "out of memory", "error_class": "MemoryLimitError", "exit_code": 11}
-    # A bug, not bad input: keep the batch going but say what it was.
-    return {"error": f"unexpected {type(exc).__name__}: {exc}", "error_class": type(exc).__name__,
-            "exit_code": 1}
 
 
 @dataclass(frozen=True)
@@ -76,48 +69,27 @@ class EncodeJob:
         return display_name(self.source)
 
 
-def encode_job(job: EncodeJob) -> dict:
-    """Do one :class:`EncodeJob`; never raises for bad input.
+def encode_one(job: EncodeJob, *, after_write: AfterWrite | None = None) -> dict:
+    """Encode one :class:`EncodeJob`'s image and write its sample file; raises on any problem.
 
     Returns
     -------
     dict
-        ``status`` (``ok``/``skipped``/``failed``), ``input``, ``output``, ``timings``
-        and, when encoded, the fields of :class:`stereobudget.io.EncodeReport`
-        (``epsilon``, sizes...); on failure ``error``, ``error_class``, ``exit_code``.
+        ``input``, ``output`` and the fields of :class:`stereobudget.io.EncodeReport`
+        (``epsilon``, sizes...).
     """
-    start = time.perf_counter()
-    result = {"status": "ok", "input": display_name(job.source),
-              "output": "<stdout>" if job.output == STDIO else job.output}
-    _in_job(True)
-    try:
-        recipe = _encode_recipe(job) if job.batch else None
-        if recipe is not None:
-            reason = recipe_difference([job.output], recipe)
-            if reason is None and not job.overwrite:
-                result.update(status="skipped", reason="up to date")
-                return result
-            if os.path.exists(job.output):
-                result["redone"] = "--overwrite" if reason is None else reason
-        from ..io._samples import encode_file
-        overwrite = _prepare_outputs([job.output], [job.source], overwrite=job.overwrite,
-                                     make_dirs=job.batch)
-        # Output and record together (see decode_file); an encode takes milliseconds.
-        with interrupts_deferred():
-            report = encode_file(job.source, job.output, pattern=job.pattern, raw_size=job.raw_size,
-                                 pix_fmt=job.pix_fmt, overwrite=overwrite, **(job.coding or {}))
-            if recipe is not None:
-                write_recipes([job.output], recipe)
-        result.update(report.as_dict())
-        result["input"] = report.source
-    except (StereoBudgetError, MemoryError) as exc:
-        result.update(status="failed", **_failure(exc))
-    except Exception as exc:  # noqa: BLE001 -- one bad file must not stop a batch
-        log.debug("unexpected error on %s", job.label, exc_info=True)
-        result.update(status="failed", **_failure(exc))
-    finally:
-        _in_job(False)
-        result["timings"] = {"total": round(time.perf_counter() - start, 4)}
+    from ..io._samples import encode_file
+
+    overwrite = prepare_outputs([job.output], [job.source], overwrite=job.overwrite, make_dirs=job.batch)
+    # Output and record together (see decode_arrays); an encode takes milliseconds.
+    with interrupts_deferred():
+        report = encode_file(job.source, job.output, pattern=job.pattern, raw_size=job.raw_size,
+                             pix_fmt=job.pix_fmt, overwrite=overwrite, **(job.coding or {}))
+        if after_write is not None:
+            after_write([job.output])
+    result = {"input": report.source, "output": "<stdout>" if job.output == STDIO else job.output}
+    result.update(report.as_dict())
+    result["input"] = report.source
     return result
 
 
@@ -218,12 +190,12 @@ def recover_right_image(left, disparity, samples):
     return recovered.image, extras
 
 
-def decode_file(job: DecodeJob, *, recipe: dict | None = None) -> dict:
+def decode_file(job: DecodeJob, *, after_write: AfterWrite | None = None) -> dict:
     """Decode one pair and write its outputs; raises on any problem.
 
     This is the single-file path of ``sb-decode`` (errors keep their class and exit
-    code); batches use :func:`decode_job`, which wraps it.  ``recipe``
-    (:func:`stereobudget.batch._recipes.make_recipe`) is recorded beside the outputs.
+    code); batches use :func:`stereobudget.batch.decode_job`, which wraps it.
+    ``after_write`` is called with the output paths inside the step that writes them.
 
     Returns
     -------
@@ -241,8 +213,8 @@ def decode_file(job: DecodeJob, *, recipe: dict | None = None) -> dict:
     outputs = job.outputs
     check_job_outputs(job)
     inputs = [job.left, job.samples]
-    overwrite = _prepare_outputs(list(outputs.values()), inputs, overwrite=job.overwrite,
-                                 make_dirs=job.batch)
+    overwrite = prepare_outputs(list(outputs.values()), inputs, overwrite=job.overwrite,
+                                make_dirs=job.batch)
     from ..io import _images as imageio
     from ..io._samples import load_samples
     timings: dict = {}
@@ -253,11 +225,12 @@ def decode_file(job: DecodeJob, *, recipe: dict | None = None) -> dict:
     timings["read"] = time.perf_counter() - t
     return decode_arrays(left, samples, job, left_name=display_name(job.left),
                          samples_name=display_name(job.samples), overwrite=overwrite, timings=timings,
-                         start=start, recipe=recipe, announce=not job.batch)
+                         start=start, after_write=after_write, announce=not job.batch)
 
 
 def decode_arrays(left, samples, job: DecodeJob, *, left_name: str, samples_name: str, overwrite: bool,
-                  timings: dict, start: float, recipe: dict | None = None, announce: bool = False) -> dict:
+                  timings: dict, start: float, after_write: AfterWrite | None = None,
+                  announce: bool = False) -> dict:
     """The part of :func:`decode_file` after reading: decode ``left`` + ``samples``, write ``job``'s outputs.
 
     The outputs have been checked (``overwrite`` is the flag to write them with);
@@ -275,7 +248,6 @@ def decode_arrays(left, samples, job: DecodeJob, *, left_name: str, samples_name
     from ..decoding import _decoders as decoders
     from ..io import _disparity as dispio
     from ..errors import MismatchError
-    _limit_numba_threads(job.threads)
     t = time.perf_counter()
     from ..decoding import _checks as checks
     from ..decoding import _disprange as disprange
@@ -338,8 +310,8 @@ def decode_arrays(left, samples, job: DecodeJob, *, left_name: str, samples_name
         if right_image is not None:
             imageio.write_image(job.right, right_image,
                                 channel_order="rgb" if right_image.ndim == 3 else "gray", overwrite=overwrite)
-        if recipe is not None:
-            write_recipes(outputs.values(), recipe)
+        if after_write is not None:
+            after_write(outputs.values())
     timings["write"] = time.perf_counter() - t
     timings["total"] = time.perf_counter() - start
 
@@ -371,54 +343,4 @@ def decode_arrays(left, samples, job: DecodeJob, *, left_name: str, samples_name
     return summary
 
 
-def _encode_recipe(job: EncodeJob) -> dict:
-    from dataclasses import asdict
-    return make_recipe("sb-encode", [job.source], {
-        "pattern": asdict(job.pattern), "raw_size": list(job.raw_size) if job.raw_size else None,
-        "pix_fmt": job.pix_fmt, "coding": dict(job.coding or {})})
-
-
-def _decode_recipe(job: DecodeJob) -> dict:
-    from dataclasses import asdict
-
-    from ..decoding._decoders import DecoderParams
-    from ..decoding._disprange import is_auto
-    return make_recipe("sb-decode", [job.left, job.samples], {
-        "method": job.method or DEFAULT_METHOD,
-        "max_disp": "auto" if is_auto(job.max_disp) else int(job.max_disp),
-        "min_disp": job.min_disp, "params": asdict(DecoderParams()),
-        "outputs": sorted(job.outputs), "disparity_format": job.disparity_format})
-
-
-def decode_job(job: DecodeJob) -> dict:
-    """Do one :class:`DecodeJob`; never raises for bad input (see :func:`encode_job`)."""
-    start = time.perf_counter()
-    base = {"left": display_name(job.left) if job.left else None,
-            "samples": display_name(job.samples) if job.samples else None,
-            "outputs": job.outputs}
-    _in_job(True)
-    try:
-        recipe = _decode_recipe(job) if job.batch and not job.problem else None
-        redone = None
-        if recipe is not None:
-            reason = recipe_difference(job.outputs.values(), recipe)
-            if reason is None and not job.overwrite:
-                return {"status": "skipped", **base, "reason": "up to date",
-                        "timings": {"total": round(time.perf_counter() - start, 4)}}
-            if any(os.path.exists(o) for o in job.outputs.values()):
-                redone = "--overwrite" if reason is None else reason
-        summary = decode_file(job, recipe=recipe)
-        if redone is not None:
-            summary["redone"] = redone
-        return summary
-    except Exception as exc:  # noqa: BLE001 -- one bad file must not stop a batch
-        if not isinstance(exc, (StereoBudgetError, MemoryError)):
-            log.debug("unexpected error on %s", job.label, exc_info=True)
-        return {"status": "failed", **base, **_failure(exc),
-                "timings": {"total": round(time.perf_counter() - start, 4)}}
-    finally:
-        _in_job(False)
-
-
-__all__ = ["EncodeJob", "encode_job", "DecodeJob", "recover_right_image", "decode_file",
-           "decode_arrays", "decode_job"]
+__all__ = ["EncodeJob", "encode_one", "DecodeJob", "recover_right_image", "decode_file", "decode_arrays"]

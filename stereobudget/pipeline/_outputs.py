@@ -1,4 +1,4 @@
-"""A job's outputs, checked before any work: up to date, folders created, formats known.
+"""A job's outputs, checked before any work: folders created, formats known, nothing overwritten unasked.
 
 This module imports neither numba nor OpenCV: the camera-side ``sb-encode`` uses it.
 """
@@ -7,7 +7,7 @@ from __future__ import annotations
 
 import os
 from pathlib import Path
-from typing import TYPE_CHECKING, Iterable
+from typing import TYPE_CHECKING
 
 from ..io._atomic import STDIO, check_output_path
 from ..errors import OptionError, OutputError
@@ -16,31 +16,8 @@ if TYPE_CHECKING:
     from ._jobs import DecodeJob
 
 
-def _mtime_ns(path: str) -> int | None:
-    try:
-        return os.stat(path).st_mtime_ns
-    except OSError:
-        return None
-
-
-def outputs_up_to_date(outputs: Iterable[str], inputs: Iterable[str]) -> bool:
-    """True when every output exists and is at least as new as every input (``make``'s rule)."""
-    outputs = [o for o in outputs if o is not None]
-    if not outputs or any(o == STDIO for o in outputs):
-        return False
-    input_times = [_mtime_ns(i) for i in inputs if i is not None and i != STDIO]
-    if any(t is None for t in input_times):
-        return False             # a missing input: let the job report it
-    newest_input = max(input_times, default=0)
-    for out in outputs:
-        t = _mtime_ns(out)
-        if t is None or t < newest_input:
-            return False
-    return True
-
-
-def _prepare_outputs(outputs: list[str], inputs: list[str], *, overwrite: bool, make_dirs: bool,
-                     replace_existing: bool | None = None) -> bool:
+def prepare_outputs(outputs: list[str], inputs: list[str], *, overwrite: bool, make_dirs: bool,
+                    replace_existing: bool | None = None) -> bool:
     """Check the outputs of one job; return the ``overwrite`` flag to write them with.
 
     In a batch (``make_dirs``) missing folders are created, and a stale output is
@@ -104,4 +81,4 @@ def check_job_outputs(job: DecodeJob) -> None:
     _check_output_formats(job)
 
 
-__all__ = ["outputs_up_to_date", "check_job_outputs"]
+__all__ = ["prepare_outputs", "check_job_outputs"]
