@@ -1,6 +1,6 @@
 """``sb-encode``: the right camera's job -- keep a sparse set of pixels, write a ``.sbs`` file.
 
-The command is a thin layer over :func:`stereobudget.io.encode_file`.  It must
+The command is a thin layer over :func:`stereobudget.encoding.encode_file`.  It must
 start fast on the camera: nothing here (nor in what ``--raw`` reaches) imports numba or
 OpenCV; OpenCV is loaded only when an encoded image (PNG, JPEG...) has to be decoded.
 A raw frame on the default ``grid`` pattern, and ``--info``, do not import numpy either
@@ -60,7 +60,7 @@ def build_pattern(*, pattern: str, stride: int, stride_x: int | None, stride_y: 
 
 def build_coding(*, codec: str, value_bits: int | None, quality: int | None, size: str | None,
                  size_fraction: float | None, pattern: str) -> dict:
-    """Keyword arguments of :func:`stereobudget.io.encode_file` for sb-encode's coding options.
+    """Keyword arguments of :func:`stereobudget.encoding.encode_file` for sb-encode's coding options.
 
     Empty for the default raw coding, so that path stays the plain (numpy-free) one.
 
@@ -281,7 +281,7 @@ def encode_command(images, output, stride, stride_x, stride_y, offset, pattern, 
         _batch.run_batch(batch_jobs, encode_job, workers=jobs, scheduler=scheduler, as_json=as_json)
         return
 
-    from stereobudget.io import encode_file
+    from stereobudget.encoding import encode_file
     report = encode_file(image, output, pattern=sampling, raw_size=size, pix_fmt=pix_fmt,
                          overwrite=overwrite, **coding)
     log.info("%s -> %s: %dx%d %s %s, %s %dx%d, %d samples, epsilon %.2f %%, %d bytes "

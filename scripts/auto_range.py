@@ -33,7 +33,7 @@ import cv2
 import numpy as np
 
 from stereobudget.decoding import (estimate_disparity_range, psnr_at_samples, result_warnings, setup_warnings)
-from stereobudget.io import encode_image
+from stereobudget.encoding import encode_image
 from stereobudget.metrics import bad_pixel_rate
 from stereobudget.sampling import SamplingPattern
 

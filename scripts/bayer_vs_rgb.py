@@ -21,7 +21,8 @@ import numpy as np
 
 from middlebury import SCENES, default_data_dir, load_scene
 from stereobudget.decoding import decode
-from stereobudget.io import encode_image, write_samples
+from stereobudget.io import write_samples
+from stereobudget.encoding import encode_image
 from stereobudget.io._mosaic import mosaic_image
 from stereobudget.metrics import bad_pixel_rate, psnr
 from stereobudget.sampling import SamplingPattern

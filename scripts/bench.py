@@ -164,7 +164,8 @@ def _sgbm():
 def teddy_benchmark(data_dir: Path, *, repeats: int, methods=("sparse", "hybrid")) -> dict:
     import cv2
     from stereobudget.io import _images as imageio
-    from stereobudget.io import encode_image, load_samples, save_samples
+    from stereobudget.io import load_samples, save_samples
+    from stereobudget.encoding import encode_image
     from stereobudget.decoding import check_inputs, shared_decoder
     from stereobudget.sampling import SamplingPattern
     from stereobudget._kernels import _scratch as scratch
@@ -447,7 +448,7 @@ import json, os, resource, sys, time
 import numpy as np
 sys.path.insert(0, os.path.join(os.getcwd(), "scripts"))
 from bench import smooth_pair
-from stereobudget.io import encode_image
+from stereobudget.encoding import encode_image
 from stereobudget.sampling import SamplingPattern
 from stereobudget.decoding import auto_tile_rows, shared_decoder
 from stereobudget._kernels import _scratch as scratch
@@ -738,7 +739,8 @@ def _timed_process(cmd, **kwargs):
 
 def cli_benchmark(data_dir: Path, *, repeats: int) -> dict:
     from stereobudget.io import _images as imageio
-    from stereobudget.io import encode_image, save_samples
+    from stereobudget.io import save_samples
+    from stereobudget.encoding import encode_image
     from stereobudget.sampling import SamplingPattern
     out = {}
     with tempfile.TemporaryDirectory() as tmp:
@@ -850,7 +852,8 @@ def _throughput(fn, min_seconds: float) -> float:
 def encoder_benchmark(data_dir: Path, *, min_seconds: float) -> dict:
     import cv2
     from stereobudget.io import _images as imageio
-    from stereobudget.io import encode_image, write_samples
+    from stereobudget.io import write_samples
+    from stereobudget.encoding import encode_image
     from stereobudget.sampling import SamplingPattern
     right, _ = imageio.read_image(str(data_dir / "teddy" / "right.png"))
     pattern = SamplingPattern("grid", STRIDE, STRIDE)

@@ -23,7 +23,8 @@ import numpy as np
 
 import stereobudget
 from evaluate_real import SHARED, bad_percent, load_pairs
-from stereobudget.io import HEADER_SIZE_V1_0, fit_budget, read_samples
+from stereobudget.io import HEADER_SIZE_V1_0, read_samples
+from stereobudget.encoding import fit_budget
 
 BUDGETS = (0.02, 0.04, 0.08, 0.11)
 BITS = (8, 7, 6, 5, 4)

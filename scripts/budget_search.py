@@ -25,7 +25,8 @@ import time
 import numpy as np
 
 from evaluate_real import SHARED, _codec, best_quality_under, load_pairs
-from stereobudget.io import HEADER_SIZE_V1_0, encode_image, fit_budget, write_samples
+from stereobudget.io import HEADER_SIZE_V1_0, write_samples
+from stereobudget.encoding import encode_image, fit_budget
 from stereobudget.sampling import SamplingPattern
 
 ROUNDS = 7

@@ -22,7 +22,8 @@ from pathlib import Path
 import numpy as np
 
 from stereobudget.decoding import DecoderParams, decode
-from stereobudget.io import encode_image, read_image
+from stereobudget.io import read_image
+from stereobudget.encoding import encode_image
 from stereobudget.sampling import SamplingPattern
 from stereobudget.scenes import SCENE_KINDS, make_scene
 from stereobudget.synthesis import recover_right

@@ -17,7 +17,7 @@ import sys
 
 import numpy as np
 
-from stereobudget.io import encode_image
+from stereobudget.encoding import encode_image
 from stereobudget.cost import to_float_image
 from stereobudget.decoding import decode
 from stereobudget.fill import upsample_block_means

@@ -26,7 +26,7 @@ from pathlib import Path
 
 import numpy as np
 
-from stereobudget.io import encode_image
+from stereobudget.encoding import encode_image
 from stereobudget.errors import StereoBudgetError
 from stereobudget.metrics import bad_pixel_rate, evaluate_disparity, rms_error
 from middlebury import MASK_NAMES, SCENES, default_data_dir, load_scene, paper_reference

@@ -37,7 +37,8 @@ import cv2
 import numpy as np
 
 import stereobudget
-from stereobudget.io import encode_image, write_samples
+from stereobudget.io import write_samples
+from stereobudget.encoding import encode_image
 from stereobudget.sampling import SamplingPattern
 
 SHARED = Path(__file__).resolve().parents[2] / "shared" / "data"

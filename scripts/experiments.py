@@ -18,7 +18,8 @@ import math
 
 import numpy as np
 
-from stereobudget.io import SampleSet, encode_image
+from stereobudget.io import SampleSet
+from stereobudget.encoding import encode_image
 from stereobudget.cost import full_dsi, to_float_image, to_gray
 from stereobudget.errors import OptionError
 from stereobudget.sampling import SamplingPattern, downsample_blocks, downsample_shape, sample_positions

@@ -40,7 +40,8 @@ from pathlib import Path
 import numpy as np
 
 from stereobudget.io import _samples as container
-from stereobudget.io import MAGIC, encode_image, read_samples, write_samples
+from stereobudget.io import MAGIC, read_samples, write_samples
+from stereobudget.encoding import encode_image
 from stereobudget.errors import StereoBudgetError
 from stereobudget.sampling import SamplingPattern
 

@@ -19,7 +19,7 @@ import sys
 _CHILD = r"""
 import json, sys
 import numpy as np
-from stereobudget.io import encode_image
+from stereobudget.encoding import encode_image
 from stereobudget.sampling import SamplingPattern
 from stereobudget.decoding import decode
 from stereobudget.io import estimate_decode_memory

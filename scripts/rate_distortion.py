@@ -32,7 +32,8 @@ import cv2
 import numpy as np
 
 import stereobudget
-from stereobudget.io import encode_image, fit_budget, read_samples, write_samples
+from stereobudget.io import read_samples, write_samples
+from stereobudget.encoding import encode_image, fit_budget
 from stereobudget.metrics import bad_pixel_rate
 from stereobudget.sampling import SamplingPattern
 

@@ -5,7 +5,7 @@ For every scene of ``../shared/data/realdev`` and the paper's four Middlebury sc
 for each budget of 1, 2, 4, 6, 8, 11 and 15 % of the raw RGB right image (0.24 ... 3.6
 bits per pixel) plus the sample file's header (so 4 % is exactly a raw stride-5 file), the right camera's data is made to fit the budget in these ways:
 
-* ``raw``, ``lossless``, ``jxl`` -- a sample file from :func:`stereobudget.io.fit_budget`
+* ``raw``, ``lossless``, ``jxl`` -- a sample file from :func:`stereobudget.encoding.fit_budget`
   (the densest grid whose raw / lossless-or-raw / JPEG XL-coded file fits, what
   ``sb-encode --size`` writes), decoded with the default Hybrid decoder; the recovered
   right image is :func:`stereobudget.synthesis.recover_right` of that disparity;
@@ -41,7 +41,8 @@ import numpy as np
 
 import stereobudget
 from evaluate_real import SHARED, _codec, bad_percent, best_quality_under, load_pairs, sgbm
-from stereobudget.io import HEADER_SIZE_V1_0, encode_image, fit_budget, read_samples, write_samples
+from stereobudget.io import HEADER_SIZE_V1_0, read_samples, write_samples
+from stereobudget.encoding import encode_image, fit_budget
 from stereobudget.metrics import psnr
 from stereobudget.sampling import SamplingPattern
 from stereobudget.synthesis import recover_right

@@ -33,7 +33,8 @@ from pathlib import Path
 
 import numpy as np
 
-from stereobudget.io import SampleSet, encode_image, write_samples
+from stereobudget.io import SampleSet, write_samples
+from stereobudget.encoding import encode_image
 from stereobudget.errors import OptionError, StereoBudgetError
 from stereobudget.metrics import evaluate_disparity
 from middlebury import MASK_NAMES, SCENES, load_scene, paper_reference

@@ -48,7 +48,8 @@ from pathlib import Path
 import numpy as np
 
 from stereobudget.synthesis import _synthesis as synthesis
-from stereobudget.io import encode_image, write_samples
+from stereobudget.io import write_samples
+from stereobudget.encoding import encode_image
 from stereobudget.metrics import psnr
 from middlebury import SCENES, default_data_dir, load_scene
 from stereobudget.sampling import SamplingPattern

@@ -29,7 +29,7 @@ import cv2
 import stereobudget
 from middlebury import default_data_dir, load_scene
 from stereobudget.decoding import DecoderParams
-from stereobudget.io import encode_image
+from stereobudget.encoding import encode_image
 from stereobudget.sampling import SamplingPattern
 
 ROUTES = {

@@ -21,7 +21,7 @@ import statistics
 import sys
 import time
 
-from stereobudget.io import encode_image
+from stereobudget.encoding import encode_image
 from stereobudget.decoding import DecoderParams, decode
 from stereobudget.metrics import bad_pixel_rate
 from middlebury import SCENES, default_data_dir, load_scene

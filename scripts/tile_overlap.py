@@ -17,7 +17,7 @@ import sys
 
 import numpy as np
 
-from stereobudget.io import encode_image
+from stereobudget.encoding import encode_image
 from stereobudget.decoding import decode, decode_tiled
 from stereobudget.metrics import bad_pixel_rate
 from middlebury import default_data_dir, load_scene

@@ -6,6 +6,10 @@ The library is grouped by topic; each subpackage re-exports its public names:
   atomic writes, size and memory limits.
 - :mod:`stereobudget.sampling` — where the right camera samples (grid, random, adaptive,
   farthest-point), and the block means Downsample sends.
+- :mod:`stereobudget.encoding` — the camera's job: select the samples
+  (:func:`stereobudget.encoding.encode_image`), fit a byte budget
+  (:func:`stereobudget.encoding.fit_budget`), write the file
+  (:func:`stereobudget.encoding.encode_file`).
 - :mod:`stereobudget.cost` — matching costs.  **Eq. 1**, the DSI of a full pair
   (:func:`stereobudget.cost.full_dsi`); **Eq. 2**, the sparse DSI (the cost of each left pixel
   against the right samples): :func:`stereobudget.cost.sparse_pair_cost`, with its step and
@@ -30,9 +34,12 @@ The library is grouped by topic; each subpackage re-exports its public names:
 - :mod:`stereobudget.synthesis` — the right image recovered from I1 and the disparity:
   **the warp for Î2** (:func:`stereobudget.synthesis.warp_left_to_right`), then the samples
   fill the holes (:func:`stereobudget.synthesis.recover_right`).
+- :mod:`stereobudget.pipeline` — one pair, one file, one frame: the encode and decode paths
+  (outputs checked, inputs read, decode, Î2, checks, atomic writes) that the commands, the
+  batch items and the frame streams all call.
 - :mod:`stereobudget.batch` — many inputs in one run; :mod:`stereobudget.cli` — the
-  ``sb-encode`` / ``sb-decode`` commands; :mod:`stereobudget.scenes` — synthetic scenes
-  with exact ground truth.
+  ``sb-encode`` / ``sb-decode`` commands (the repository's ``cli/`` folder);
+  :mod:`stereobudget.scenes` — synthetic scenes with exact ground truth.
 
 Plain references, for tests and for reading, sit beside the fast paths and are named for them:
 :func:`stereobudget.cost.full_dsi_reference` (Eq. 1 layer by layer),
@@ -45,8 +52,8 @@ refinement), :func:`stereobudget.aggregate.semiglobal_aggregate_reference` and
 :func:`stereobudget.synthesis.warp_reference` (the warp for Î2, gathered pixel by pixel).
 Hybrid's mix is held to the weighted mean of the Sparse fill and :func:`~stereobudget.cost.full_dsi`.
 
-The camera side (:mod:`stereobudget.io`, :mod:`stereobudget.sampling`) imports neither numba
-nor OpenCV; the decoder is loaded on first use of :func:`decode`.
+The camera side (:mod:`stereobudget.encoding`, :mod:`stereobudget.io`, :mod:`stereobudget.sampling`)
+imports neither numba nor OpenCV; the decoder is loaded on first use of :func:`decode`.
 """
 
 from ._version import __version__

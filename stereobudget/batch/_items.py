@@ -56,7 +56,7 @@ def encode_job(job: EncodeJob) -> dict:
     -------
     dict
         ``status`` (``ok``/``skipped``/``failed``), ``input``, ``output``, ``timings``
-        and, when encoded, the fields of :class:`stereobudget.io.EncodeReport`
+        and, when encoded, the fields of :class:`stereobudget.encoding.EncodeReport`
         (``epsilon``, sizes...); on failure ``error``, ``error_class``, ``exit_code``.
     """
     start = time.perf_counter()

@@ -83,17 +83,17 @@ def encode_stream(sources: Iterable[str], output: str, *, pattern, raw_size: tup
         any other name: one stream file holding every frame, written atomically when the
         stream ends.
     pattern, raw_size, pix_fmt, coding
-        As :func:`stereobudget.io.encode_file` (``coding``: its keyword arguments).
+        As :func:`stereobudget.encoding.encode_file` (``coding``: its keyword arguments).
     overwrite : bool
         Replace existing outputs.
 
     Yields
     ------
     dict
-        The frame's :class:`~stereobudget.io.EncodeReport` fields, ``frame`` (its index)
+        The frame's :class:`~stereobudget.encoding.EncodeReport` fields, ``frame`` (its index)
         and ``output``.
     """
-    from ..io._samples import encode_frame
+    from ..encoding import encode_frame
 
     sources = list(sources)
     per_frame = _one_file_per_frame(output, "-o")

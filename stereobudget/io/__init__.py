@@ -3,9 +3,8 @@
 from .._lazy import attach
 
 __getattr__, __dir__, __all__ = attach(__name__, {
-    '_samples': ['CHANNEL_ORDERS', 'SampleSet', 'encode_image', 'MAGIC', 'VERSION_MAJOR', 'VERSION_MINOR', 'HEADER_SIZE_V1_0', 'MAX_HEADER_LENGTH', 'CHANNEL_ORDER_CODES', 'PATTERN_CODES', 'DTYPE_CODES', 'write_samples', 'read_samples', 'save_samples', 'load_samples', 'header_dict', 'probe', 'EncodeReport', 'encode_file', 'encode_frame'],
+    '_samples': ['CHANNEL_ORDERS', 'SampleSet', 'MAGIC', 'VERSION_MAJOR', 'VERSION_MINOR', 'HEADER_SIZE_V1_0', 'MAX_HEADER_LENGTH', 'CHANNEL_ORDER_CODES', 'PATTERN_CODES', 'DTYPE_CODES', 'write_samples', 'read_samples', 'save_samples', 'load_samples', 'header_dict', 'probe'],
     '_codecs': ['CODEC_IDS', 'CODEC_CHOICES', 'LOSSY_CODECS', 'IMAGE_CODECS', 'DEFAULT_QUALITY', 'resolve_codec', 'have_jxl'],
-    '_budget': ['fit_budget', 'BUDGET_QUALITIES', 'BUDGET_DROPPED_BITS'],
     '_rawgrid': ['RAW_FORMATS', 'raw_frame_layout', 'check_raw_frame', 'grid_payload'],
     '_stream': ['sample_frames', 'raw_frames', 'holds_several_frames'],
     '_images': ['sniff_image_size', 'read_image', 'RAW_PIXEL_FORMATS', 'parse_raw_size', 'read_raw', 'encode_image_bytes', 'write_image'],

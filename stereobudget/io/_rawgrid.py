@@ -5,7 +5,7 @@ bytes of ``I2[oy::sy, ox::sx]``: every kept row is a strided byte slice of the f
 Doing that with ``bytes``/``memoryview`` slicing (instead of numpy) keeps the encoder
 process free of numpy, numba and OpenCV, whose import dominates its run time.  The
 payload is byte-identical to what :func:`stereobudget.io.write_samples` produces
-from :func:`stereobudget.io.read_raw` + :func:`stereobudget.io.encode_image`:
+from :func:`stereobudget.io.read_raw` + :func:`stereobudget.encoding.encode_image`:
 values in row-major transmission order, channels interleaved, uint16 little-endian
 (``gray16le`` and the ``bayer_*16le`` mosaics already are).
 

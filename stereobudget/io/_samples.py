@@ -2,8 +2,8 @@
 
 The binary ``.sbs`` encoding of a :class:`SampleSet` is specified in ``docs/format.md``
 and implemented by :func:`write_samples` / :func:`read_samples` / :func:`probe`
-(files: :func:`save_samples` / :func:`load_samples`).  :func:`encode_file` is the whole
-camera-side job for one image: read, sample, write atomically.
+(files: :func:`save_samples` / :func:`load_samples`).  Selecting the samples and the
+camera-side job (read, select, code, write) are :mod:`stereobudget.encoding`'s.
 
 numpy is imported inside the functions that need it, never at module level: a raw
 frame on a ``grid`` (``sb-encode --raw``) is encoded by :mod:`stereobudget.io._rawgrid` with
@@ -20,9 +20,9 @@ import zlib
 from dataclasses import dataclass
 from pathlib import Path
 
-from ._atomic import STDIO, check_output_path, display_name, read_input_bytes, reading_error, write_output_bytes
-from ..errors import (CorruptHeaderError, CorruptPayloadError, ImageReadError, NotASampleFileError, OptionError,
-                     TruncatedFileError, UnsupportedVersionError)
+from ._atomic import STDIO, display_name, read_input_bytes, reading_error, write_output_bytes
+from ..errors import (CorruptHeaderError, CorruptPayloadError, NotASampleFileError, TruncatedFileError,
+                     UnsupportedVersionError)
 from ._limits import dimension_problem
 from ._mosaic import MOSAIC_ORDERS, mosaic_of
 from ._codecs import (CODEC_IDS, CODEC_NAMES, DEFAULT_QUALITY, IMAGE_CODECS, LATTICE_PATTERNS, LOSSY_CODECS,
@@ -151,43 +151,6 @@ class SampleSet:
             raise ValueError(f"pattern {self.pattern.kind!r} is not a regular grid")
         r, c = grid_shape(self.pattern, self.height, self.width)
         return self.values.reshape(r, c, self.channels)
-
-
-def encode_image(image: np.ndarray, *, pattern: SamplingPattern, channel_order: str | None = None) -> SampleSet:
-    """Select the samples of ``image`` (the camera's only job: no arithmetic on pixel values).
-
-    Parameters
-    ----------
-    image : ndarray, (H, W) or (H, W, C), uint8 or uint16
-        The right image.  C = 1 or 3.
-    pattern : SamplingPattern
-        Where to sample.  ``downsample`` is the one pattern that computes (block means).
-    channel_order : str, optional
-        Channel order of ``image``; default ``"gray"`` for one channel, ``"rgb"`` for three.
-        A raw Bayer frame is one channel with its mosaic's order (``"bayer_rggb"`` ...).
-    """
-    import numpy as np
-
-    img = image if image.ndim == 3 else image[:, :, None]
-    h, w, c = img.shape
-    if channel_order is None:
-        channel_order = "gray" if c == 1 else "rgb"
-    if mosaic_of(channel_order) and pattern.kind == "downsample":
-        raise OptionError("--pattern downsample averages pixels and would mix a Bayer mosaic's colours; "
-                          "use grid, jitter, fps or adaptive_fps")
-    if pattern.kind == "downsample":
-        from ..sampling._patterns import downsample_blocks  # computes block means, camera side
-        values = downsample_blocks(img, pattern)
-    elif pattern.kind in ("fps", "adaptive_fps"):
-        rows, cols = sample_positions(pattern, h, w, image=img)
-        values = img[rows, cols]
-    elif pattern.is_regular_grid:
-        values = img[pattern.offset_y::pattern.stride_y, pattern.offset_x::pattern.stride_x].reshape(-1, c)
-    else:
-        rows, cols = sample_positions(pattern, h, w)
-        values = img[rows, cols]
-    return SampleSet(height=h, width=w, channel_order=channel_order, pattern=pattern,
-                     values=np.ascontiguousarray(values))
 
 
 # =====================================================================================
@@ -725,197 +688,3 @@ def probe(source, *, verify_payload: bool = False, name: str | None = None) -> d
     except OSError as exc:
         raise reading_error(exc, NotASampleFileError, name) from None
     return header_dict(_parse_header(memoryview(head), name, file_size=size))
-
-
-# =====================================================================================
-# The camera-side job for one input
-# =====================================================================================
-
-@dataclass(frozen=True)
-class EncodeReport:
-    """What :func:`encode_file` did (JSON-able through :meth:`as_dict`)."""
-
-    source: str
-    output: str
-    width: int
-    height: int
-    channels: int
-    channel_order: str
-    dtype: str
-    pattern: str
-    stride_x: int
-    stride_y: int
-    offset_x: int
-    offset_y: int
-    seed: int
-    sample_count: int
-    epsilon: float
-    header_bytes: int
-    payload_bytes: int
-    file_size: int
-    codec: str = "raw"
-    value_bits: int = 8
-    quality: int = 0
-    bits_per_pixel: float = 0.0
-
-    def as_dict(self) -> dict:
-        return dict(self.__dict__)
-
-
-def encode_file(source, output, *, pattern: SamplingPattern, raw_size: tuple[int, int] | None = None,
-                pix_fmt: str | None = None, overwrite: bool = False, codec: str = "raw",
-                value_bits: int | None = None, quality: int | None = None, size: int | None = None,
-                size_fraction: float | None = None) -> EncodeReport:
-    """Read one right image, keep its samples, and write the ``.sbs`` file atomically.
-
-    This is the per-file unit of work of ``sb-encode`` (and of batch runners).
-
-    Parameters
-    ----------
-    source : str or os.PathLike
-        Image file (PNG, TIFF, JPEG, PPM...), or ``-`` for standard input.
-    output : str or os.PathLike
-        Sample file to write, or ``-`` for standard output.
-    pattern : SamplingPattern
-        ``grid`` or ``jitter`` (the patterns whose positions the camera can produce).
-    raw_size : (width, height), optional
-        Treat the input as one headerless frame of this size (needs ``pix_fmt``).
-    pix_fmt : str, optional
-        Raw pixel format, see :data:`stereobudget.io._images.RAW_PIXEL_FORMATS`.
-    overwrite : bool
-        Replace an existing output.
-    codec, value_bits, quality
-        Payload coding, see :func:`write_samples`.
-    size : int, optional
-        Byte budget of the file: the grid stride (``pattern`` gives only its kind) and
-        the coding are chosen by :func:`stereobudget.io.fit_budget`.
-    size_fraction : float, optional
-        The budget as a fraction of the raw image bytes (W H channels bytes-per-value).
-
-    Returns
-    -------
-    EncodeReport
-
-    Raises
-    ------
-    OutputError, ImageReadError, OptionError
-        Bad output path (checked before the input is read), unreadable input, or a
-        pattern that leaves no sample on this image.
-    """
-    check_output_path(output, [source], overwrite)
-    name = display_name(source)
-    log.debug("reading %s", name)
-    coding = dict(codec=codec, value_bits=value_bits, quality=quality, size=size, size_fraction=size_fraction)
-    if raw_size is not None:
-        if pix_fmt is None:
-            raise OptionError("a raw frame needs a pixel format (--pix-fmt)")
-        frame = read_input_bytes(source, error=ImageReadError)
-    else:
-        from . import _images as imageio
-        frame = imageio.read_image(source, name=name)
-    data, report = encode_frame(frame, name=name, output=output, pattern=pattern, raw_size=raw_size,
-                                pix_fmt=pix_fmt, **coding)
-    write_output_bytes(output, data, overwrite=overwrite)
-    return report
-
-
-def encode_frame(frame, *, name: str, output, pattern: SamplingPattern, raw_size: tuple[int, int] | None = None,
-                 pix_fmt: str | None = None, codec: str = "raw", value_bits: int | None = None,
-                 quality: int | None = None, size: int | None = None,
-                 size_fraction: float | None = None,
-                 budget_hint: EncodeReport | None = None) -> tuple[bytes, EncodeReport]:
-    """The ``.sbs`` bytes of one frame already in memory, and their report.
-
-    ``frame`` is the bytes of one headerless frame when ``raw_size`` is given, else an
-    ``(image, channel_order)`` pair as :func:`stereobudget.io.read_image` returns; the
-    other arguments are those of :func:`encode_file` (``output`` only names the report's
-    destination).  A raw frame on a ``grid`` with the raw coding is packed without numpy.
-    ``budget_hint``, the report of the previous frame of a stream, starts the budget
-    search (``size`` / ``size_fraction``) at that frame's choice: the same file, fewer
-    trial encodes (:func:`stereobudget.io.fit_budget`).
-    """
-    if raw_size is not None:
-        plain = codec == "raw" and value_bits is None and size is None and size_fraction is None
-        if pattern.is_regular_grid and plain:
-            # The camera's common case, without numpy: bytes slicing (see rawgrid).
-            return _encode_raw_grid(frame, output, name=name, raw_size=raw_size, pix_fmt=pix_fmt,
-                                    pattern=pattern)
-        from . import _images as imageio  # numpy; OpenCV loads only for encoded images
-        image, channel_order = imageio.read_raw(frame, width=raw_size[0], height=raw_size[1],
-                                                pix_fmt=pix_fmt, name=name)
-    else:
-        image, channel_order = frame
-    height, width = image.shape[:2]
-    if size_fraction is not None:
-        size = int(size_fraction * image.size * image.dtype.itemsize)
-    if size is not None:
-        if pattern.kind != "grid" or (pattern.offset_x, pattern.offset_y) != (0, 0):
-            raise OptionError("--size and --epsilon choose a grid stride: use the default grid pattern, "
-                              "no offset")
-        from ._budget import fit_budget
-        try:
-            hint = None if budget_hint is None else {
-                "stride": budget_hint.stride_x,
-                "coding": {"codec": budget_hint.codec, "value_bits": budget_hint.value_bits,
-                           "quality": budget_hint.quality}}
-            sample_set, data, coding = fit_budget(image, budget=size, codec=None if codec == "raw" else codec,
-                                                  value_bits=value_bits, quality=quality,
-                                                  channel_order=channel_order, hint=hint)
-        except OptionError as exc:
-            raise OptionError(exc.message, path=exc.path or name) from None
-        pattern = sample_set.pattern
-    else:
-        _count_samples(pattern, width, height, name)
-        sample_set = encode_image(image, pattern=pattern, channel_order=channel_order)
-        try:
-            data, used, bits, q = _coded_file(sample_set, codec=codec, value_bits=value_bits, quality=quality)
-        except OptionError as exc:
-            raise OptionError(exc.message, path=exc.path or name) from None
-        coding = {"codec": used, "value_bits": bits, "quality": q}
-    return data, _report(name, output, width=width, height=height, channels=sample_set.channels,
-                         channel_order=channel_order, dtype=str(sample_set.dtype), pattern=pattern,
-                         sample_count=sample_set.values.shape[0], file_size=len(data), **coding)
-
-
-def _encode_raw_grid(data, output, *, name: str, raw_size: tuple[int, int], pix_fmt: str,
-                     pattern: SamplingPattern) -> tuple[bytes, EncodeReport]:
-    """:func:`encode_frame` for a raw frame on a ``grid``: same checks, errors and bytes, no numpy."""
-    from ._rawgrid import check_raw_frame, grid_payload
-
-    width, height = raw_size
-    channels, value_bytes, channel_order = check_raw_frame(data, width=width, height=height,
-                                                           pix_fmt=pix_fmt, name=name)
-    n = _count_samples(pattern, width, height, name)
-    _check_writable(width, height, pattern)
-    payload = grid_payload(data, width=width, height=height, pixel_bytes=channels * value_bytes,
-                           stride_x=pattern.stride_x, stride_y=pattern.stride_y,
-                           offset_x=pattern.offset_x, offset_y=pattern.offset_y)
-    data = _pack_file(width=width, height=height, channel_order=channel_order, dtype_code=value_bytes,
-                      pattern=pattern, sample_count=n, payload=payload)
-    return data, _report(name, output, width=width, height=height, channels=channels,
-                         channel_order=channel_order, dtype=_DTYPE_NAMES[value_bytes], pattern=pattern,
-                         sample_count=n, file_size=len(data))
-
-
-def _count_samples(pattern: SamplingPattern, width: int, height: int, name: str) -> int:
-    """Samples the pattern takes from a ``width`` x ``height`` image; OptionError when none."""
-    n = sample_count(pattern, height, width)
-    if n == 0:
-        raise OptionError(f"offset ({pattern.offset_x},{pattern.offset_y}) leaves no sample in a "
-                          f"{width}x{height} image", path=name)
-    return n
-
-
-def _report(name: str, output, *, width: int, height: int, channels: int, channel_order: str, dtype: str,
-            pattern: SamplingPattern, sample_count: int, file_size: int, codec: str = "raw",
-            value_bits: int | None = None, quality: int = 0) -> EncodeReport:
-    """The :class:`EncodeReport` of a file written by :func:`encode_file`."""
-    return EncodeReport(
-        source=name, output="<stdout>" if str(output) == STDIO else str(output),
-        width=width, height=height, channels=channels, channel_order=channel_order, dtype=dtype,
-        pattern=pattern.kind, stride_x=pattern.stride_x, stride_y=pattern.stride_y,
-        offset_x=pattern.offset_x, offset_y=pattern.offset_y, seed=pattern.seed,
-        sample_count=sample_count, epsilon=sample_count / float(height * width),
-        header_bytes=HEADER_SIZE_V1_0, payload_bytes=file_size - HEADER_SIZE_V1_0, file_size=file_size,
-        codec=codec, value_bits=value_bits or 8 * _DTYPE_CODE_BY_NAME[dtype], quality=quality,
-        bits_per_pixel=8.0 * file_size / float(width * height))

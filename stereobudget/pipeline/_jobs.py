@@ -51,7 +51,7 @@ class EncodeJob:
     batch : bool
         Batch semantics: skip up-to-date outputs, replace stale ones, create folders.
     coding : dict, optional
-        Keyword arguments of :func:`stereobudget.io.encode_file` choosing the payload
+        Keyword arguments of :func:`stereobudget.encoding.encode_file` choosing the payload
         coding (``codec``, ``value_bits``, ``quality``, ``size``, ``size_fraction``).
     """
 
@@ -75,10 +75,10 @@ def encode_one(job: EncodeJob, *, after_write: AfterWrite | None = None) -> dict
     Returns
     -------
     dict
-        ``input``, ``output`` and the fields of :class:`stereobudget.io.EncodeReport`
+        ``input``, ``output`` and the fields of :class:`stereobudget.encoding.EncodeReport`
         (``epsilon``, sizes...).
     """
-    from ..io._samples import encode_file
+    from ..encoding import encode_file
 
     overwrite = prepare_outputs([job.output], [job.source], overwrite=job.overwrite, make_dirs=job.batch)
     # Output and record together (see decode_arrays); an encode takes milliseconds.

@@ -27,7 +27,7 @@ def test_empty_kernel_cache_is_announced_once(tmp_path):
 def test_after_a_default_decode_the_kernels_count_as_cached():
     # The notice must not reappear once the default decoder has run (it probes the
     # modules that decoder compiles, not only the paper's tree route).
-    decode = ("import numpy as np; from stereobudget import decode; from stereobudget.io import encode_image;"
+    decode = ("import numpy as np; from stereobudget import decode; from stereobudget.encoding import encode_image;"
               "from stereobudget.sampling import SamplingPattern; from stereobudget.scenes import make_scene;"
               "s = make_scene('slanted', height=48, width=64, max_disp=8);"
               "decode(s.left, encode_image(s.right, pattern=SamplingPattern('grid', 5, 5)), max_disp=8)")

@@ -18,7 +18,8 @@ from click.testing import CliRunner
 
 from stereobudget import batch
 from stereobudget.cli.decode import decode_command
-from stereobudget.io import encode_image, load_samples, save_samples
+from stereobudget.io import load_samples, save_samples
+from stereobudget.encoding import encode_image
 from stereobudget.io import read_disparity
 from stereobudget.errors import NotASampleFileError, OptionError
 from stereobudget.sampling import SamplingPattern

@@ -20,7 +20,8 @@ import cv2
 import numpy as np
 import pytest
 
-from stereobudget.io import encode_image, read_disparity, save_samples
+from stereobudget.io import read_disparity, save_samples
+from stereobudget.encoding import encode_image
 from stereobudget.sampling import SamplingPattern
 from stereobudget.scenes import make_scene
 

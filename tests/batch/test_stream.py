@@ -8,7 +8,8 @@ import pytest
 from stereobudget.batch import decode_stream, encode_stream, expand_template
 from stereobudget.pipeline import DecodeJob, decode_file
 from stereobudget.errors import MismatchError, OptionError, TruncatedFileError
-from stereobudget.io import encode_file, read_disparity, sample_frames
+from stereobudget.io import read_disparity, sample_frames
+from stereobudget.encoding import encode_file
 from stereobudget.sampling import SamplingPattern
 
 GRID = SamplingPattern("grid", 5, 5)

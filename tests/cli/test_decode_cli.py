@@ -15,7 +15,8 @@ from click.testing import CliRunner
 
 from stereobudget import __version__
 from stereobudget.cli.decode import decode_command
-from stereobudget.io import encode_image, save_samples
+from stereobudget.io import save_samples
+from stereobudget.encoding import encode_image
 from stereobudget.io import read_disparity
 from stereobudget.errors import (ImageReadError, MismatchError, NotASampleFileError, OptionError,
                                  OutputError)

@@ -28,7 +28,8 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from stereobudget import io as sbio
-from stereobudget.io import MAGIC, encode_image, read_samples, write_samples
+from stereobudget.io import MAGIC, read_samples, write_samples
+from stereobudget.encoding import encode_image
 from stereobudget.errors import (CorruptHeaderError, ImageReadError, MemoryLimitError, SampleFileError,
                                  StereoBudgetError, TruncatedFileError)
 from stereobudget.sampling import SamplingPattern
@@ -574,7 +575,7 @@ def test_max_memory_option_exit_11(image_cases):
 _PEAK_CHILD = r"""
 import json, sys
 import numpy as np
-from stereobudget.io import encode_image
+from stereobudget.encoding import encode_image
 from stereobudget.sampling import SamplingPattern
 from stereobudget.decoding import decode
 import inspect

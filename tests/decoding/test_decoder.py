@@ -6,7 +6,7 @@ import pytest
 import stereobudget
 from stereobudget._kernels import _scratch as scratch
 from stereobudget.decoding import Decoder, DecoderParams, decode, shared_decoder
-from stereobudget.io import encode_image
+from stereobudget.encoding import encode_image
 from stereobudget.sampling import SamplingPattern
 from stereobudget.scenes import make_scene
 

@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 
 import stereobudget
-from stereobudget.io import encode_image
+from stereobudget.encoding import encode_image
 from stereobudget.aggregate import winner_take_all
 from stereobudget.decoding import DecoderParams
 from stereobudget.errors import MismatchError, OptionError

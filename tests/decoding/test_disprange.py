@@ -9,7 +9,7 @@ import pytest
 
 from stereobudget.decoding import (estimate_disparity_range, is_auto, limit_shares, psnr_at_samples,
                                    resolve_range, result_warnings, setup_warnings)
-from stereobudget.io import encode_image
+from stereobudget.encoding import encode_image
 from stereobudget.sampling import SamplingPattern
 from stereobudget.scenes import make_scene
 

@@ -9,7 +9,8 @@ from stereobudget.cost import pixel_cost
 from stereobudget.decoding import decode
 from stereobudget.decoding import band_samples
 from stereobudget.errors import MismatchError, OptionError
-from stereobudget.io import encode_image, read_samples, write_samples
+from stereobudget.io import read_samples, write_samples
+from stereobudget.encoding import encode_image
 from stereobudget.io import mosaic_image, rgb_with_gaps
 from stereobudget.metrics import bad_pixel_rate
 from stereobudget.sampling import SamplingPattern

@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from stereobudget.io import encode_image
+from stereobudget.encoding import encode_image
 from stereobudget.decoding import Decoder, auto_tile_rows, decode, decode_tiled
 from stereobudget.decoding import band_samples
 from stereobudget.errors import OptionError

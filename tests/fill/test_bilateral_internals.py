@@ -8,7 +8,7 @@ from numba import njit
 
 from stereobudget.fill import FillScale, SparseCostTerms
 from stereobudget.fill import _bilateral as bilateral
-from stereobudget.io import encode_image
+from stereobudget.encoding import encode_image
 from stereobudget.cost import sample_row_steps, to_float_image, to_gray
 from stereobudget.sampling import SamplingPattern, grid_shape
 from stereobudget.scenes import make_scene

@@ -4,7 +4,8 @@ import pytest
 
 from stereobudget.cost import to_float_image
 from stereobudget.fill import gaussian_lowpass, gaussian_taps, lowpass_interpolation
-from stereobudget.io import SampleSet, encode_image
+from stereobudget.io import SampleSet
+from stereobudget.encoding import encode_image
 from stereobudget.sampling import SamplingPattern
 
 

@@ -10,7 +10,8 @@ from hypothesis import strategies as st
 
 from stereobudget.errors import CorruptHeaderError, CorruptPayloadError, OptionError, UnsupportedVersionError
 from stereobudget import io as sbio
-from stereobudget.io import BUDGET_DROPPED_BITS, encode_image, fit_budget, probe, read_samples, write_samples
+from stereobudget.io import probe, read_samples, write_samples
+from stereobudget.encoding import BUDGET_DROPPED_BITS, encode_image, fit_budget
 from stereobudget.sampling import SamplingPattern
 
 HEADER = sbio.HEADER_SIZE_V1_0

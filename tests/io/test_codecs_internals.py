@@ -10,7 +10,8 @@ from hypothesis import strategies as st
 
 from stereobudget.errors import OptionError, UnsupportedVersionError
 from stereobudget.io import _codecs
-from stereobudget.io import encode_image, fit_budget, read_samples, write_samples
+from stereobudget.io import read_samples, write_samples
+from stereobudget.encoding import encode_image, fit_budget
 from stereobudget.sampling import SamplingPattern
 
 needs_jxl = pytest.mark.skipif(not _codecs.have_jxl(), reason="imagecodecs with JPEG XL is not installed")

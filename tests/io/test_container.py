@@ -11,8 +11,10 @@ import pytest
 from hypothesis import given, settings, strategies as st
 
 from stereobudget import io as sbio
-from stereobudget.io import (HEADER_SIZE_V1_0, MAGIC, SampleSet, encode_image, load_samples,
-                                    probe, read_samples, save_samples, write_samples)
+from stereobudget import encoding as sbenc
+from stereobudget.io import (HEADER_SIZE_V1_0, MAGIC, SampleSet, load_samples, probe, read_samples, save_samples,
+                             write_samples)
+from stereobudget.encoding import encode_image
 from stereobudget.errors import (CorruptHeaderError, CorruptPayloadError, NotASampleFileError,
                                  OutputError, TruncatedFileError, UnsupportedVersionError)
 from stereobudget.sampling import SamplingPattern, sample_count, sample_positions
@@ -369,7 +371,7 @@ def test_raw_grid_path_writes_the_bytes_of_the_numpy_path(case):
         src, out = f"{tmp}/frame.raw", f"{tmp}/f.sbs"
         with open(src, "wb") as handle:
             handle.write(frame)
-        report = sbio.encode_file(src, out, pattern=pattern, raw_size=size, pix_fmt=pix_fmt)
+        report = sbenc.encode_file(src, out, pattern=pattern, raw_size=size, pix_fmt=pix_fmt)
         with open(out, "rb") as handle:
             written = handle.read()
     assert written == expected
@@ -418,11 +420,11 @@ def test_raw_grid_path_errors_match_the_numpy_path(tmp_path):
         with pytest.raises(ImageReadError) as numpy_path:
             sbio.read_raw(data, width=size[0], height=size[1], pix_fmt=pix_fmt, name=str(src))
         with pytest.raises(ImageReadError) as fast_path:
-            sbio.encode_file(src, tmp_path / "o.sbs", pattern=grid, raw_size=size, pix_fmt=pix_fmt)
+            sbenc.encode_file(src, tmp_path / "o.sbs", pattern=grid, raw_size=size, pix_fmt=pix_fmt)
         assert str(fast_path.value) == str(numpy_path.value)
     src.write_bytes(bytes(4 * 3))
     with pytest.raises(OptionError, match="leaves no sample"):
-        sbio.encode_file(src, tmp_path / "o.sbs", pattern=SamplingPattern("grid", 9, 9, offset_x=5),
+        sbenc.encode_file(src, tmp_path / "o.sbs", pattern=SamplingPattern("grid", 9, 9, offset_x=5),
                               raw_size=(4, 3), pix_fmt="gray8")
     assert not (tmp_path / "o.sbs").exists()
 

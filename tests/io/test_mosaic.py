@@ -9,7 +9,8 @@ import numpy as np
 import pytest
 
 from stereobudget.errors import CorruptHeaderError, OptionError
-from stereobudget.io import encode_file, encode_image, probe, read_samples, write_samples
+from stereobudget.io import probe, read_samples, write_samples
+from stereobudget.encoding import encode_file, encode_image
 from stereobudget.io import BAYER_PATTERNS, mosaic_image, shifted_order
 from stereobudget.sampling import SamplingPattern
 

@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 
 from stereobudget.errors import CorruptHeaderError, ImageReadError, NotASampleFileError, TruncatedFileError
-from stereobudget.io import (encode_image, holds_several_frames, raw_frames, read_samples, sample_frames,
-                             write_samples)
+from stereobudget.io import holds_several_frames, raw_frames, read_samples, sample_frames, write_samples
+from stereobudget.encoding import encode_image
 from stereobudget.sampling import SamplingPattern
 
 

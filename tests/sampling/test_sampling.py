@@ -7,7 +7,8 @@ import time
 import numpy as np
 import pytest
 
-from stereobudget.io import SampleSet, encode_image, read_samples, write_samples
+from stereobudget.io import SampleSet, read_samples, write_samples
+from stereobudget.encoding import encode_image
 from stereobudget.sampling import (ADAPTIVE_BASE, SamplingPattern, adaptive_split, adaptive_tile_weights,
                                    downsample_blocks, downsample_shape, fps_positions, sample_count,
                                    sample_positions, splitmix64)

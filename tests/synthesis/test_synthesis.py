@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from stereobudget import synthesis
-from stereobudget.io import encode_image
+from stereobudget.encoding import encode_image
 from stereobudget.errors import MismatchError, OptionError
 from stereobudget.metrics import psnr
 from stereobudget.sampling import SamplingPattern
