@@ -571,7 +571,7 @@ def scaling(*, sizes, disparities, methods, budget: int, repeats: int, per_point
     within minutes) falls on every point alike instead of on the points run last; a
     point's figures are the medians over its rounds, and the spread of its rounds is kept.
     """
-    from stereobudget.io import estimate_decode_memory
+    from stereobudget.decoding import estimate_decode_memory
     points = []
     for method in methods:
         for mp in sizes:
@@ -902,7 +902,7 @@ def encoder_report(r: dict, cli: dict | None) -> list[str]:
 # 6. 12 MP
 
 _BIG_CHILD = _CHILD_PRELUDE + r"""
-from stereobudget.io import estimate_decode_memory
+from stereobudget.decoding import estimate_decode_memory
 h, w, nd, method, budget = a["h"], a["w"], a["nd"], a["method"], a["budget"]
 left, samples = warm_pair(method, h, w, 64)
 tiles = auto_tile_rows(samples, num_disp=nd, method=method, max_memory=budget)

@@ -3,7 +3,7 @@
 Each (size, disparities, method, stride) case runs in a fresh subprocess: the decoder is
 JIT-warmed on a tiny input, the kernel's peak-RSS counter is reset
 (``/proc/self/clear_refs``), the decode runs, and the peak RSS above the resting RSS is
-reported next to :func:`stereobudget.io.estimate_decode_memory`.
+reported next to :func:`stereobudget.decoding.estimate_decode_memory`.
 
     python scripts/measure_decode_memory.py                 # Teddy size and ~1 MP
     python scripts/measure_decode_memory.py --json out.json
@@ -22,7 +22,7 @@ import numpy as np
 from stereobudget.encoding import encode_image
 from stereobudget.sampling import SamplingPattern
 from stereobudget.decoding import decode
-from stereobudget.io import estimate_decode_memory
+from stereobudget.decoding import estimate_decode_memory
 
 height, width, num_disp, method, stride, kind = json.loads(sys.argv[1])
 s = 1 if method == "full" else stride

@@ -64,7 +64,7 @@ def right_disparity_from_left(aggregated, min_disp, support, *, layout=None, num
         Row layout of ``aggregated`` when it is given as rows.
     num_disp : int, optional
         Layers searched: the first ``num_disp`` (default: all; the rest are padding, see
-        :func:`stereobudget.io.volume_layers`).
+        :func:`stereobudget.cost.volume_layers`).
 
     Returns
     -------
@@ -160,7 +160,7 @@ def left_right_refined_rows(left_rows, right_rows, *, left_layout, right_layout,
         ``timer(stage)`` context manager that records stage times.
     num_disp : int, optional
         Disparities searched: the first ``num_disp`` layers (default: all ``D``; the rest
-        are padding, :func:`stereobudget.io.volume_layers`).
+        are padding, :func:`stereobudget.cost.volume_layers`).
 
     Returns
     -------
@@ -214,7 +214,7 @@ def full_pair_disparity(left_f, right_f, *, tree_guide, min_disp, num_disp, para
     built on ``tree_guide`` (I1 itself, also when ``left_f`` is a low-passed I1), the right
     tree on ``right_f``.
     """
-    from ..io._limits import volume_layers
+    from ..cost._layers import volume_layers
     from ._pair_volumes import pair_cost_rows
     with timer("tree"):
         tree, left_layout, right_layout = pair_trees(tree_guide, right_f, params=params)

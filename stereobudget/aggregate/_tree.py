@@ -1340,7 +1340,7 @@ def aggregate_rows_winners(volume: np.ndarray, layout: TreeLayout, *, min_disp: 
     num_disp : int, optional, keyword-only
         Layers that compete for the winner: the first ``num_disp`` (default: all ``D``).
         Rows may carry more layers, padded to a vector-friendly width
-        (:func:`stereobudget.io.volume_layers`); those are aggregated alongside, as
+        (:func:`stereobudget.cost.volume_layers`); those are aggregated alongside, as
         any layer is on its own, and never win.
 
     Returns

@@ -66,7 +66,7 @@ def decode(left: np.ndarray, samples: SampleSet, *, max_disp: int, min_disp: int
     MismatchError, OptionError
         Left image and samples disagree, or the disparity range does not fit.
     MemoryLimitError
-        The estimate (:func:`stereobudget.io.estimate_decode_memory`) exceeds
+        The estimate (:func:`stereobudget.decoding.estimate_decode_memory`) exceeds
         ``max_memory``; checked before any volume is allocated.
 
     Notes

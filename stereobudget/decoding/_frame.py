@@ -15,14 +15,21 @@ from ._memory import check_memory
 from ._params import DecodeResult, StageTimer, adapt_to_noise
 from ._sparse import decode_sparse
 
-#: The pipeline of each method: ``(left_f, guide, samples, tree_guide, *, min_disp,
-#: num_disp, params, timer) -> float32 (H, W) disparity``.
-_PIPELINES = {
-    "sparse": decode_sparse,
-    "hybrid": decode_hybrid,
-    "downsample": decode_downsample,
-    "full": decode_full,
-}
+
+def run_pipeline(method, left_f, guide, samples, tree_guide, *, min_disp, num_disp, params, timer):
+    """The float32 (H, W) disparity of ``method``'s own pipeline (every pipeline takes these arguments)."""
+    if method == "sparse":
+        pipeline = decode_sparse
+    elif method == "hybrid":
+        pipeline = decode_hybrid
+    elif method == "downsample":
+        pipeline = decode_downsample
+    elif method == "full":
+        pipeline = decode_full
+    else:
+        raise OptionError(f"unknown method {method!r}")
+    return pipeline(left_f, guide, samples, tree_guide, min_disp=min_disp, num_disp=num_disp, params=params,
+                    timer=timer)
 
 
 def decode_frame(left, samples, *, max_disp, min_disp, method, params, max_memory):
@@ -33,8 +40,7 @@ def decode_frame(left, samples, *, max_disp, min_disp, method, params, max_memor
     # Another frame size than the last decode's: the large spare volumes of that one are
     # dropped (scratch.frame; of the same size, those this decode does not take go after it).
     with scratch.frame((samples.height, samples.width, num_disp, method)):
-        check_memory(samples, num_disp=num_disp, method="downsample" if samples.pattern.kind == "downsample"
-                     else method, params=params, max_memory=max_memory)
+        check_memory(samples, num_disp=num_disp, method=method, params=params, max_memory=max_memory)
         timer = StageTimer()
         with timer("prepare"):
             left_f, guide = float_and_gray(left)
@@ -43,15 +49,7 @@ def decode_frame(left, samples, *, max_disp, min_disp, method, params, max_memor
         # An 8-bit I1 gives the same tree as its float copy, by a counting sort over 256 keys
         # instead of 65536 (~30 % faster).
         tree_guide = left if left.dtype == np.uint8 else left_f
-        if samples.pattern.kind == "downsample" and method not in ("downsample",):
-            if method != "hybrid":
-                raise OptionError(f"a downsample sample file can only be decoded with --method downsample, "
-                                  f"not {method}")
-            method = "downsample"
-        elif method == "downsample" and samples.pattern.kind != "downsample":
-            raise OptionError(f"--method downsample needs a sample file written with --pattern downsample "
-                              f"(this one is {samples.pattern.kind})")
-        disp = _PIPELINES[method](left_f, guide, samples, tree_guide, min_disp=min_disp, num_disp=num_disp,
-                                  params=params, timer=timer)
+        disp = run_pipeline(method, left_f, guide, samples, tree_guide, min_disp=min_disp, num_disp=num_disp,
+                            params=params, timer=timer)
     return DecodeResult(disparity=disp, method=method, min_disp=int(min_disp), max_disp=int(max_disp),
                         timings=timer.timings, params=params)

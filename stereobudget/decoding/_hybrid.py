@@ -20,7 +20,7 @@ from ..cost._census import mix_spaced_census, spaced_census
 from ..cost._cost import to_gray
 from ..fill._bilateral import release_grids, sparse_dsi_grids
 from ..fill._lowpass import gaussian_lowpass, lowpass_interpolation
-from ..io._limits import volume_layers
+from ..cost._layers import volume_layers
 from .._kernels import _scratch as scratch
 from ._full import semiglobal_disparity, typical_margin
 from ._params import sampling_stride

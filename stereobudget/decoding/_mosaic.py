@@ -24,7 +24,7 @@ from ..errors import OptionError
 
 
 def mosaic_decoding(samples, *, method: str, params):
-    """``(method, params)`` for decoding mosaic samples; unchanged for any other sample set.
+    """The ``params`` for decoding mosaic samples with ``method``; unchanged for any other sample set.
 
     Raises
     ------
@@ -32,7 +32,7 @@ def mosaic_decoding(samples, *, method: str, params):
         A stride-1 mosaic (``full``): the decoders compare samples, not a demosaiced frame.
     """
     if not getattr(samples, "mosaic", None):
-        return method, params
+        return params
     p = samples.pattern
     if p.kind == "grid" and p.stride_x == 1 and p.stride_y == 1:
         raise OptionError(f"a {samples.channel_order} mosaic at stride 1 is a whole raw frame: the full-pair "
@@ -43,4 +43,4 @@ def mosaic_decoding(samples, *, method: str, params):
         from ..io._mosaic import colours_present
         if not all(colours_present(samples)):
             changes["hybrid_sparse_weight"] = 1.0
-    return method, replace(params, **changes)
+    return replace(params, **changes)

@@ -12,7 +12,22 @@ import numpy as np
 from ..cost._cost import DEFAULT_TRUNCATION, noise_level, noise_level_of_gray, to_float_image
 from ..errors import MismatchError, OptionError
 from ..io._samples import SampleSet
-from ._methods import DEFAULT_METHOD, METHODS
+from ._methods import DEFAULT_METHOD, METHOD_RECORDS, METHODS
+
+#: The routes a :class:`DecoderParams` may choose, each with what it does (checked on construction).
+HYBRID_AGGREGATIONS = {
+    "semiglobal_census": "the Sparse fill mixed with the census of the low-passed pair, semi-global paths",
+    "semiglobal": "the paper's mixed cost on the semi-global paths",
+    "tree": "the paper's mixed cost on Yang's tree, left-right check and refinement",
+}
+FULL_COSTS = {
+    "census": "5x5 census of the pair, semi-global paths",
+    "ad": "Eq. 1 (colour and gradient differences) on Yang's tree",
+}
+RIGHT_CHECKS = {
+    "tree": "the right view's costs aggregated on the right image's own tree",
+    "diagonal": "the right view's disparity read off the left view's aggregated costs",
+}
 
 
 @dataclass(frozen=True)
@@ -145,6 +160,13 @@ class DecoderParams:
     sgm_paths: int = 8
     right_check: str = "tree"
 
+    def __post_init__(self):
+        for name, table in (("hybrid_aggregation", HYBRID_AGGREGATIONS), ("full_cost", FULL_COSTS),
+                            ("right_check", RIGHT_CHECKS)):
+            value = getattr(self, name)
+            if value not in table:
+                raise OptionError(f"unknown {name} {value!r}; expected one of {', '.join(map(repr, table))}")
+
 
 @dataclass
 class DecodeResult:
@@ -240,10 +262,11 @@ def adapt_to_noise(params: DecoderParams, left: np.ndarray, *, method: str,
     sigma = noise_level_of_gray(gray) if gray is not None else noise_level(to_float_image(left))
     k = params.noise_reference
     changes = {"noise_reference": None}
-    if method in ("sparse", "hybrid"):
+    noise = METHOD_RECORDS[method].noise
+    if noise == "sparse":
         changes.update(truncation=max(params.truncation, 2 * k * sigma),
                        step_truncation=max(params.step_truncation, 2 * k * sigma))
-    elif method == "full":
+    elif noise == "dense":
         changes.update(full_truncation=max(params.full_truncation, 2 * k * sigma),
                        grad_truncation=max(params.grad_truncation, k * sigma))
     return replace(params, **changes)
@@ -255,26 +278,42 @@ def sampling_stride(samples: SampleSet) -> float:
     return float(np.sqrt(samples.pattern.stride_x * samples.pattern.stride_y))
 
 
+def method_for(samples: SampleSet, requested: str | None) -> str:
+    """The method that decodes ``samples`` when ``requested`` is asked for: the one place it is decided.
+
+    A stride-1 file is decoded as the full pair whatever was asked; a file of block means by
+    Downsample (when the default was asked); any other method must accept the file's samples
+    (its record's ``patterns``).
+    """
+    requested = requested or DEFAULT_METHOD
+    if requested not in METHODS:
+        raise OptionError(f"unknown method {requested!r}; expected one of {', '.join(METHODS)}")
+    p = samples.pattern
+    if p.kind == "downsample":
+        if requested not in ("downsample", DEFAULT_METHOD):
+            raise OptionError(f"a downsample sample file can only be decoded with --method downsample, "
+                              f"not {requested}")
+        return "downsample"
+    if is_full_grid(samples):
+        return "full"
+    takes = METHOD_RECORDS[requested].patterns
+    if takes == "blocks":
+        raise OptionError(f"--method downsample needs a sample file written with --pattern downsample "
+                          f"(this one is {p.kind})")
+    if takes == "full":
+        raise OptionError(f"--method full needs every pixel of I2 (a sample file written with --stride 1); "
+                          f"this one holds {p.kind} samples at stride {p.stride_x}x{p.stride_y}")
+    return requested
+
+
 def resolve_method(left, samples, *, method, params, min_disp, max_disp, adapt=True):
-    """Validate the inputs, pick the method a sample set implies, and (``adapt``) adapt the
-    params to I1's noise."""
+    """Validate the inputs, pick the method a sample set implies (:func:`method_for`), adapt the
+    params to mosaic samples and (``adapt``) to I1's noise."""
     params = params or DecoderParams()
-    method = method or DEFAULT_METHOD
-    if method not in METHODS:
+    if (method or DEFAULT_METHOD) not in METHODS:
         raise OptionError(f"unknown method {method!r}; expected one of {', '.join(METHODS)}")
-    if params.hybrid_aggregation not in ("tree", "semiglobal", "semiglobal_census"):
-        raise OptionError(f"unknown hybrid_aggregation {params.hybrid_aggregation!r}; expected 'tree' or 'semiglobal'")
-    if params.full_cost not in ("census", "ad"):
-        raise OptionError(f"unknown full_cost {params.full_cost!r}; expected 'census' or 'ad'")
-    if params.right_check not in ("tree", "diagonal"):
-        raise OptionError(f"unknown right_check {params.right_check!r}; expected 'tree' or 'diagonal'")
     check_inputs(left, samples, min_disp=min_disp, max_disp=max_disp)
     from ._mosaic import mosaic_decoding
-    method, params = mosaic_decoding(samples, method=method, params=params)
-    if is_full_grid(samples):
-        method = "full"
-    elif method == "full":
-        raise OptionError(f"--method full needs every pixel of I2 (a sample file written with --stride 1); "
-                          f"this one holds {samples.pattern.kind} samples at stride "
-                          f"{samples.pattern.stride_x}x{samples.pattern.stride_y}")
+    params = mosaic_decoding(samples, method=method or DEFAULT_METHOD, params=params)
+    method = method_for(samples, method)
     return method, (adapt_to_noise(params, left, method=method) if adapt else params)

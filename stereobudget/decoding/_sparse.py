@@ -9,7 +9,7 @@ from ..aggregate._refine import median_filter_disparity
 from ..cost._cost import sample_row_steps, to_gray
 from ..fill._bilateral import FillScale, SparseCostTerms, filled_sparse_dsi
 from ..fill._lowpass import _sample_values_f32
-from ..io._limits import volume_layers
+from ..cost._layers import volume_layers
 from ..sampling._patterns import grid_shape
 from .._kernels import _scratch as scratch
 from ._params import sampling_stride

@@ -13,6 +13,7 @@ from .._kernels import _scratch as scratch
 from ._frame import decode_frame
 from ..io._limits import default_memory_limit
 from ._memory import decode_memory
+from ._methods import TILED_METHODS
 from ._params import DecodeResult, DecoderParams, resolve_method
 
 log = logging.getLogger("stereobudget")
@@ -26,7 +27,6 @@ log = logging.getLogger("stereobudget")
 DEFAULT_TILE_OVERLAP = 128
 #: Bands are never made shorter than this (below it the overlap dominates the work).
 MIN_TILE_ROWS = 64
-TILED_METHODS = ("sparse", "hybrid", "full")
 
 
 def band_samples(samples: SampleSet, top: int, bottom: int):
@@ -110,7 +110,7 @@ def auto_tile_rows(samples: SampleSet, *, num_disp: int, method: str, params: De
     refuses the frame with its usual message).
     """
     params = params or DecoderParams()
-    if method not in TILED_METHODS or samples.pattern.kind == "downsample":
+    if method not in TILED_METHODS:      # a downsample file resolves to its own, untiled method
         return 0
     h, w = samples.height, samples.width
 
@@ -171,7 +171,7 @@ def _decode_bands(left, samples, *, max_disp, min_disp, method, params, tile_row
     serve the next band)."""
     method, params = resolve_method(left, samples, method=method, params=params,
                                     min_disp=min_disp, max_disp=max_disp)
-    if method not in TILED_METHODS or samples.pattern.kind == "downsample":
+    if method not in TILED_METHODS:
         raise OptionError(f"tiled decoding supports {', '.join(TILED_METHODS)} on point samples, not "
                           f"{method} on a {samples.pattern.kind} sample file")
     tile_rows, overlap = int(tile_rows), int(overlap)

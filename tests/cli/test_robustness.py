@@ -30,6 +30,7 @@ from hypothesis import strategies as st
 from stereobudget import io as sbio
 from stereobudget.io import MAGIC, read_samples, write_samples
 from stereobudget.encoding import encode_image
+from stereobudget.decoding import estimate_decode_memory
 from stereobudget.errors import (CorruptHeaderError, ImageReadError, MemoryLimitError, SampleFileError,
                                  StereoBudgetError, TruncatedFileError)
 from stereobudget.sampling import SamplingPattern
@@ -500,22 +501,22 @@ def test_same_file_through_a_symlink_is_refused(image_cases, tmp_path):
 def test_estimate_counts_volumes_and_grids():
     v = 100 * 200 * 48 * 4
     pixels = 100 * 200
-    full = sbio.estimate_decode_memory(100, 200, 48, "full")
+    full = estimate_decode_memory(100, 200, 48, "full")
     assert full >= 2.25 * v                  # census volume + the two sums of the semi-global paths
-    assert 2 * v <= sbio.estimate_decode_memory(100, 200, 48, "downsample") < full
-    sparse = sbio.estimate_decode_memory(100, 200, 48, "sparse", stride_x=5, stride_y=5)
-    hybrid = sbio.estimate_decode_memory(100, 200, 48, "hybrid", stride_x=5, stride_y=5)
+    assert 2 * v <= estimate_decode_memory(100, 200, 48, "downsample") < full
+    sparse = estimate_decode_memory(100, 200, 48, "sparse", stride_x=5, stride_y=5)
+    hybrid = estimate_decode_memory(100, 200, 48, "hybrid", stride_x=5, stride_y=5)
     assert hybrid >= sparse and hybrid >= 3 * v
     # Smaller strides mean finer bilateral grids: more memory.
-    assert sbio.estimate_decode_memory(100, 200, 48, "sparse", stride_x=2, stride_y=2) > sparse
+    assert estimate_decode_memory(100, 200, 48, "sparse", stride_x=2, stride_y=2) > sparse
     # Linear in the number of disparities (up to the per-pixel and fixed terms).
-    double = sbio.estimate_decode_memory(100, 200, 96, "full")
+    double = estimate_decode_memory(100, 200, 96, "full")
     assert abs((double - full) - (full - 192 * pixels - 16 * 2 ** 20)) < 0.01 * full
     # The volumes' rows are padded to whole vectors of 8 layers, and the estimate counts them.
-    assert sbio.estimate_decode_memory(100, 200, 41, "full") == full
-    assert sbio.estimate_decode_memory(100, 200, 49, "full") > full
+    assert estimate_decode_memory(100, 200, 41, "full") == full
+    assert estimate_decode_memory(100, 200, 49, "full") > full
     with pytest.raises(ValueError):
-        sbio.estimate_decode_memory(100, 200, 50, "magic")
+        estimate_decode_memory(100, 200, 50, "magic")
 
 
 def test_parse_size_and_default_limit(monkeypatch):
@@ -543,7 +544,7 @@ def test_decode_refuses_before_allocating(monkeypatch):
     left = rng.integers(0, 256, (height, width, 3), dtype=np.uint8)
     samples = encode_image(rng.integers(0, 256, (height, width, 3), dtype=np.uint8),
                            pattern=SamplingPattern("grid", 4, 4))
-    need = sbio.estimate_decode_memory(height, width, max_disp + 1, "hybrid", stride_x=4, stride_y=4)
+    need = estimate_decode_memory(height, width, max_disp + 1, "hybrid", stride_x=4, stride_y=4)
     one_cost_volume = height * width * (max_disp + 1) * 4      # float32 (H, W, D)
     tracemalloc.start()
     try:
@@ -610,7 +611,7 @@ def test_estimate_bounds_the_measured_peak():
                           capture_output=True, text=True, timeout=300)
     assert proc.returncode == 0, proc.stderr[-2000:]
     for (method, stride, _), measured in zip(cases, json.loads(proc.stdout.strip().splitlines()[-1])):
-        estimate = sbio.estimate_decode_memory(h, w, nd, method, stride_x=stride, stride_y=stride)
+        estimate = estimate_decode_memory(h, w, nd, method, stride_x=stride, stride_y=stride)
         assert measured <= estimate, (method, measured, estimate)
         # Conservative, not absurd (the fixed 16 MiB allowance dominates at this small size).
         assert estimate <= 2.0 * measured + 16 * 2 ** 20, (method, measured, estimate)

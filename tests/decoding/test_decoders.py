@@ -216,7 +216,7 @@ def test_diagonal_right_check_decodes_without_a_right_tree(scene):
 
 
 def test_volume_rows_are_padded_to_whole_vectors():
-    from stereobudget.io import volume_layers
+    from stereobudget.cost import volume_layers
     assert [volume_layers(n) for n in (1, 7, 8, 9, 16, 61, 256)] == [8, 8, 8, 16, 16, 64, 256]
 
 

@@ -7,7 +7,7 @@ from stereobudget.encoding import encode_image
 from stereobudget.decoding import Decoder, auto_tile_rows, decode, decode_tiled
 from stereobudget.decoding import band_samples
 from stereobudget.errors import OptionError
-from stereobudget.io import estimate_decode_memory
+from stereobudget.decoding import estimate_decode_memory
 from stereobudget.sampling import SamplingPattern
 from stereobudget.scenes import make_scene
 
