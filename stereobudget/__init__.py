@@ -13,12 +13,14 @@ The library is grouped by topic; each subpackage re-exports its public names:
 - :mod:`stereobudget.cost` — matching costs.  **Eq. 1**, the DSI of a full pair
   (:func:`stereobudget.cost.full_dsi`); **Eq. 2**, the sparse DSI (the cost of each left pixel
   against the right samples): :func:`stereobudget.cost.sparse_pair_cost`, with its step and
-  lattice census terms; the census of a full pair and of a grid's spacing
-  (:func:`stereobudget.cost.census_cost_volume`, :func:`stereobudget.cost.spaced_census`).
+  lattice census terms, evaluated at a sample by :func:`stereobudget.cost.sample_cost` (its
+  terms in one record, :class:`stereobudget.cost.SparseCostTerms`); the census of a full pair
+  and of a grid's spacing (:func:`stereobudget.cost.census_cost_volume`,
+  :func:`stereobudget.cost.spaced_census`).
 - :mod:`stereobudget.fill` — **Eq. 3** with the filter of **Eq. 4**, the normalised joint
   bilateral fill of the sparse DSI: :func:`stereobudget.fill.filled_sparse_dsi` (the grids of
   :func:`stereobudget.fill.sparse_dsi_grids`; its terms and scales in
-  :class:`stereobudget.fill.SparseCostTerms` and :class:`stereobudget.fill.FillScale`); the
+  :class:`stereobudget.cost.SparseCostTerms` and :class:`stereobudget.fill.FillScale`); the
   low-passed pair Hybrid and Downsample use (:func:`stereobudget.fill.gaussian_lowpass`,
   :func:`stereobudget.fill.block_lowpass`).
 - :mod:`stereobudget.aggregate` — Yang's aggregation on the minimum spanning tree (the paper's

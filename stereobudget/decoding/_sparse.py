@@ -7,7 +7,8 @@ from __future__ import annotations
 from ..aggregate import _tree as _tree
 from ..aggregate._refine import median_filter_disparity
 from ..cost._cost import sample_row_steps, to_gray
-from ..fill._bilateral import FillScale, SparseCostTerms, filled_sparse_dsi
+from ..cost._sparse import SparseCostTerms
+from ..fill._bilateral import FillScale, filled_sparse_dsi
 from ..fill._lowpass import _sample_values_f32
 from ..cost._layers import volume_layers
 from ..sampling._patterns import grid_shape

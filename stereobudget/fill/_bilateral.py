@@ -20,6 +20,10 @@ Accuracy: splatting and slicing with hat functions each add 1/6 cell^2 of varian
 axis; the blur is narrowed by exactly that amount so the effective kernel has the
 requested sigma.  ``tests/fill/test_bilateral.py`` states the agreement with a brute-force
 filter.
+
+The cost splatted at each sample is Eq. (2), evaluated by :func:`stereobudget.cost.sample_cost`
+with its terms as one record (:class:`stereobudget.cost.SparseCostTerms`): the splat kernels
+here only place it in the grid.
 """
 
 from __future__ import annotations
@@ -33,7 +37,7 @@ from numba import get_num_threads, njit, prange
 
 from .._kernels._jit import NO_REFCOUNTS
 from .._kernels._simd import MAX_PERIOD_LANES, PERIOD_READ_PAST, periodic_corner_sum
-from ..cost._cost import sparse_pair_cost
+from ..cost._sparse import LeftPixels, RightSamples, SparseCostTerms, SparseTerms, left_terms, sample_cost
 from ._geometry import GridGeometry, grid_geometry
 from .._kernels._scratch import empty_volume, recycle, zeroed_volume
 
@@ -66,33 +70,6 @@ class FillScale:
                              cells_per_sigma_s=self.cells_per_sigma_s, cells_per_sigma_r=self.cells_per_sigma_r)
 
 
-@dataclass(frozen=True)
-class SparseCostTerms:
-    """The terms of Eq. (2)'s cost at a sample (:func:`stereobudget.cost.sparse_pair_cost`).
-
-    Attributes
-    ----------
-    truncation : float
-        Truncation of the colour term (:func:`stereobudget.cost.pixel_cost`); every term is
-        brought to ``[0, truncation]``.
-    step_weight, step_truncation : float
-        Weight (0: off) and truncation (gray levels) of the step term, the gray difference
-        to the sample ``step_spacing`` pixels to the right.
-    step_spacing : int
-        Column spacing of the steps (the grid stride).
-    census_weight : float
-        Weight of the lattice census (0: off).
-    census_spacing : (int, int), optional
-        ``(stride_x, stride_y)`` of a regular sample grid whose samples arrive row by row;
-        ``None`` (not a regular grid) turns the lattice census off.
-    """
-
-    truncation: float
-    step_weight: float = 0.0
-    step_truncation: float = 5.0
-    step_spacing: int = 1
-    census_weight: float = 0.0
-    census_spacing: tuple[int, int] | None = None
 
 
 def _gaussian_kernel(std: float) -> np.ndarray:
@@ -624,14 +601,6 @@ def _layer_block(block, blocks, num_disp):
 
 
 @njit(cache=True, inline="always")
-def _left_step(guide, y, x, step_spacing, step_weight):
-    """I1's gray difference over the sample spacing at (y, x) (NaN: no step term or no neighbour)."""
-    if step_weight > 0 and x + step_spacing < guide.shape[1]:
-        return guide[y, x + step_spacing] - guide[y, x]
-    return np.float32(np.nan)
-
-
-@njit(cache=True, inline="always")
 def _corner_weights(ty, tx, tz, weights):
     """The 8 trilinear hat weights of a point, corners in (y, x, z) order as every splat adds them."""
     c = 0
@@ -676,32 +645,11 @@ def _splat_cost(values_flat, band_flat, offsets, band_offsets, weights, layer, c
 
 
 class SplatTerms(NamedTuple):
-    """The scalars every splat kernel of the Sparse DSI takes: Eq. (2)'s cost terms
-    (:func:`stereobudget.cost.sparse_pair_cost`) and the grid's scales."""
+    """The scalars every splat kernel of the Sparse DSI takes: Eq. (2)'s terms and the grid's scales."""
 
-    truncation: np.float32
-    step_spacing: int
-    step_weight: np.float32
-    step_truncation: np.float32
-    census_weight: np.float32
+    cost: SparseTerms   # Eq. (2)'s terms (stereobudget.cost.sample_cost)
     inv_cs: float       # grid cells per pixel
     inv_cr: float       # grid cells per gray level
-
-
-class RightSamples(NamedTuple):
-    """What the splat kernels read of the right samples, one row per sample."""
-
-    values: np.ndarray  # float32 (K, C), 8-bit units
-    steps: np.ndarray   # float32 (K,), difference to the next sample of the row (NaN: none)
-    codes: np.ndarray   # int64 (K,), lattice census code (-1: no census term)
-
-
-class LeftPixels(NamedTuple):
-    """What the splat kernels read of I1."""
-
-    image: np.ndarray   # float32 (H, W, C), 8-bit units
-    guide: np.ndarray   # float32 (H, W), its gray image
-    codes: np.ndarray   # uint8 (H, W), lattice census code
 
 
 class LatticeRows(NamedTuple):
@@ -724,9 +672,7 @@ class LatticeGrids(NamedTuple):
 
 
 def _splat_terms(terms: SparseCostTerms, geom: GridGeometry) -> SplatTerms:
-    return SplatTerms(np.float32(terms.truncation), int(terms.step_spacing), np.float32(terms.step_weight),
-                      np.float32(terms.step_truncation), np.float32(terms.census_weight),
-                      1.0 / geom.cell_s, 1.0 / geom.cell_r)
+    return SplatTerms(terms.kernel_terms(), 1.0 / geom.cell_s, 1.0 / geom.cell_r)
 
 
 @njit(cache=True, parallel=True)
@@ -743,11 +689,10 @@ def _splat_sparse_dsi_split(rows, cols, samples, pixels, min_disp, terms, grid_v
     result does not depend on the thread count).  ``samples``: :class:`RightSamples`,
     ``pixels``: :class:`LeftPixels`, ``terms``: :class:`SplatTerms`.
     """
-    right_values, right_steps, right_codes = samples
-    left, guide, left_codes = pixels
-    truncation, step_spacing, step_weight, step_truncation, census_weight, inv_cs, inv_cr = terms
+    guide = pixels.guide
+    cost_terms, inv_cs, inv_cr = terms
     gy_n, gx_n, gz_n, num_disp = grid_val.shape
-    w = left.shape[1]
+    w = guide.shape[1]
     blocks = max(1, min(blocks, num_disp))
     band_n = band_w.shape[1]
     values_flat = grid_val.reshape(grid_val.size)
@@ -764,10 +709,7 @@ def _splat_sparse_dsi_split(rows, cols, samples, pixels, min_disp, terms, grid_v
                 x = cols[k] + min_disp + i
                 if x < 0 or x >= w:
                     continue
-                left_step = _left_step(guide, y, x, step_spacing, step_weight)
-                cost = sparse_pair_cost(left[y, x], right_values[k], left_step, right_steps[k], truncation,
-                                        step_weight, step_truncation, left_codes[y, x], right_codes[k],
-                                        census_weight)
+                cost = sample_cost(left_terms(pixels, y, x, cost_terms), samples, k, cost_terms)
                 x0, tx = _hat(x * inv_cs, gx_n)
                 z0, tz = _hat(guide[y, x] * inv_cr, gz_n)
                 _corner_weights(ty, tx, tz, weights)
@@ -792,11 +734,10 @@ def _splat_lattice_rows(r_lo, r_hi, cell_lo, cell_hi, lattice, samples, pixels, 
     """
     sample_rows, offset_x, stride, n_cols = lattice
     grid_val, band_w, base_w, channel_of_residue = grids
-    right_values, right_steps, right_codes = samples
-    left, guide, left_codes = pixels
-    truncation, step_spacing, step_weight, step_truncation, census_weight, inv_cs, inv_cr = terms
+    guide = pixels.guide
+    cost_terms, inv_cs, inv_cr = terms
     gy_n, gx_n, gz_n, num_disp = grid_val.shape
-    w = left.shape[1]
+    w = guide.shape[1]
     band_n = band_w.shape[1]
     n_base = base_w.shape[3]
     values_flat = grid_val.reshape(grid_val.size)
@@ -845,13 +786,11 @@ def _splat_lattice_rows(r_lo, r_hi, cell_lo, cell_hi, lattice, samples, pixels, 
                             c += 1
             if i_first > i_max:
                 continue
-            left_step = _left_step(guide, y, x, step_spacing, step_weight)
+            at_left = left_terms(pixels, y, x, cost_terms)
             # Sample of layer i: column (reach - i) / stride of the row, one less per step.
             k = r * n_cols + (reach - i_first) // stride
-            left_code = left_codes[y, x]
             for i in range(i_first, i_max + 1, stride):
-                cost = sparse_pair_cost(left[y, x], right_values[k], left_step, right_steps[k], truncation,
-                                        step_weight, step_truncation, left_code, right_codes[k], census_weight)
+                cost = sample_cost(at_left, samples, k, cost_terms)
                 if all_corners:  # a fixed trip count: the 8 adds unrolled
                     _splat_cost(values_flat, band_flat, offsets, band_offsets, weights, i, cost)
                 else:

@@ -10,7 +10,8 @@ from __future__ import annotations
 import numpy as np
 
 from ..cost._cost import pixel_cost
-from ._bilateral import FillScale, SparseCostTerms
+from ..cost._sparse import SparseCostTerms
+from ._bilateral import FillScale
 
 
 def sparse_joint_bilateral_reference(guide: np.ndarray, rows: np.ndarray, cols: np.ndarray, values: np.ndarray,

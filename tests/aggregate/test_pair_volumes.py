@@ -3,7 +3,8 @@
 import numpy as np
 import pytest
 
-from stereobudget.fill import FillScale, SparseCostTerms, filled_sparse_dsi, sparse_dsi_grids
+from stereobudget.cost import SparseCostTerms
+from stereobudget.fill import FillScale, filled_sparse_dsi, sparse_dsi_grids
 from stereobudget.cost import full_dsi, to_gray
 from stereobudget.aggregate import build_tree, tree_layout
 from stereobudget.aggregate import pair_cost_rows

@@ -3,8 +3,9 @@
 import numpy as np
 import pytest
 
-from stereobudget.fill import (FillScale, SparseCostTerms, filled_sparse_dsi, filled_sparse_dsi_reference,
-                               sparse_joint_bilateral, sparse_joint_bilateral_reference)
+from stereobudget.cost import SparseCostTerms
+from stereobudget.fill import (FillScale, filled_sparse_dsi, filled_sparse_dsi_reference, sparse_joint_bilateral,
+                               sparse_joint_bilateral_reference)
 
 
 def _textured(h, w, seed=0):

@@ -6,7 +6,8 @@ import numpy as np
 import pytest
 from numba import njit
 
-from stereobudget.fill import FillScale, SparseCostTerms
+from stereobudget.cost import SparseCostTerms
+from stereobudget.fill import FillScale
 from stereobudget.fill import _bilateral as bilateral
 from stereobudget.encoding import encode_image
 from stereobudget.cost import sample_row_steps, to_float_image, to_gray
