@@ -55,7 +55,7 @@ def main() -> None:
                 key = f"{kind}/{pattern.kind}{pattern.stride_x}/{method}/{aggregation}"
                 digests[key] = digest(result.disparity)
                 if method == "hybrid" and aggregation == "semiglobal_census":
-                    digests[key + "/right"] = digest(recover_right(scene.left, result.disparity, samples))
+                    digests[key + "/right"] = digest(recover_right(scene.left, result.disparity, samples).image)
     for kind in SCENE_KINDS[:2]:
         scene = make_scene(kind, height=90, width=140, max_disp=24, seed=3)
         full = encode_image(scene.right, pattern=SamplingPattern("grid", 1, 1))
@@ -68,7 +68,7 @@ def main() -> None:
             for method in ("sparse", "hybrid"):
                 disparity = decode(left, samples, max_disp=60, method=method).disparity
                 digests[f"teddy/{stride}/{method}"] = digest(disparity)
-                digests[f"teddy/{stride}/{method}/right"] = digest(recover_right(left, disparity, samples))
+                digests[f"teddy/{stride}/{method}/right"] = digest(recover_right(left, disparity, samples).image)
     Path(args.output).write_text(json.dumps(digests, indent=1, sort_keys=True) + "\n")
     print(f"{len(digests)} decodes -> {args.output}")
 
