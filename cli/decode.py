@@ -162,6 +162,11 @@ def _decode_stream(left, samples, templates: dict, *, as_json: bool, **options) 
 @click.option("--preview", metavar="OUT.png", default=None, help="Colour preview of the disparity (PNG).")
 @click.option("--right", metavar="OUT", default=None,
               help="Recovered right image (PNG/TIFF, the input's channels and bit depth; '-' = stdout).")
+@click.option("--warp", "warp_mode", type=click.Choice(("linear", "splat", "nearest")), default=None,
+              help="How --right forward-warps LEFT with the disparity.  [default: linear]")
+@click.option("--no-enhance", is_flag=True, default=False,
+              help="--right without the correction of the warp by the samples (faster; the samples are "
+                   "still written back at their pixels).")
 @click.option("--max-memory", metavar="SIZE", default=None,
               help="Refuse a pair whose decode would need more memory than SIZE (e.g. 8G, 500M).  "
                    "[default: 75 % of the available memory, or $STEREOBUDGET_MAX_MEMORY]")
@@ -172,7 +177,8 @@ def _decode_stream(left, samples, templates: dict, *, as_json: bool, **options) 
 @common.version_option
 @common.handle_errors
 def decode_command(inputs, left_dir, samples_dir, manifest, max_disp, min_disp, method, disparity,
-                   disparity_format, preview, right, max_memory, jobs, scheduler, overwrite, as_json):
+                   disparity_format, preview, right, warp_mode, no_enhance, max_memory, jobs, scheduler, overwrite,
+                   as_json):
     """Recover the disparity of LEFT from the right camera's SAMPLES (.sbs).
 
     One of LEFT and SAMPLES may be '-' (standard input).  LEFT and SAMPLES may also be
@@ -219,6 +225,11 @@ def decode_command(inputs, left_dir, samples_dir, manifest, max_disp, min_disp, 
             raise OptionError(f"--max-memory: {exc}") from None
     templates = {name: value for name, value in (("disparity", disparity), ("preview", preview),
                                                   ("right", right)) if value is not None}
+    # The settings of stereobudget.synthesis.SynthesisParams that differ from its defaults.
+    synthesis = {key: value for key, value in (("warp_mode", warp_mode), ("enhance", False if no_enhance else None))
+                 if value is not None} or None
+    if synthesis and right is None:
+        raise OptionError("--warp and --no-enhance set how --right is recovered; give --right")
     if not templates:
         raise OptionError("nothing to write: give --disparity, --preview and/or --right")
     if _is_stream(inputs, left_dir, samples_dir, manifest, templates):
@@ -231,6 +242,7 @@ def decode_command(inputs, left_dir, samples_dir, manifest, max_disp, min_disp, 
         if as_json and "-" in templates.values():
             raise OptionError("--json cannot be combined with an output on '-' (stdout carries the images)")
         _decode_stream(inputs[0], inputs[1], templates, max_disp=max_disp, min_disp=min_disp, method=method,
+                       synthesis=synthesis,
                        overwrite=overwrite, max_memory=max_memory, disparity_format=disparity_format,
                        as_json=as_json)
         return
@@ -263,7 +275,7 @@ def decode_command(inputs, left_dir, samples_dir, manifest, max_disp, min_disp, 
             left=pair.left, samples=pair.samples, max_disp=pair_max,
             min_disp=pair.min_disp if pair.min_disp is not None else min_disp, method=method,
             overwrite=overwrite, batch=batch, problem=pair.problem, max_memory=max_memory,
-            disparity_format=disparity_format, **outputs))
+            disparity_format=disparity_format, synthesis=synthesis, **outputs))
     if not batch:
         summary = decode_file(job_list[0])
         log.info("%s + %s -> %s: %dx%d, epsilon %.2f %%, %s, disparity %d..%d (%s), %.2f s", summary["left"],

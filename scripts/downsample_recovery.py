@@ -24,7 +24,7 @@ from stereobudget.fill import upsample_block_means
 from stereobudget.metrics import psnr
 from middlebury import SCENES, default_data_dir, load_scene
 from stereobudget.sampling import SamplingPattern
-from stereobudget.synthesis import recover_right_from_block_means
+from stereobudget.synthesis import SynthesisParams, recover_right_from_block_means
 
 
 def main(argv=None) -> int:
@@ -46,8 +46,10 @@ def main(argv=None) -> int:
             sent = to_float_image(samples.values_rgb()[:, None, :])[:, 0, :].reshape(-(-h // block),
                                                                                  -(-w // block), -1)
             upsampled = np.clip(np.rint(upsample_block_means(sent, block, block, h, w)), 0, 255).astype(np.uint8)
-            cells = [f"{psnr(recover_right_from_block_means(scene.left, disparity, samples, iterations=r).image, scene.right):.2f}"
-                     for r in rounds]
+            recovered = [recover_right_from_block_means(scene.left, disparity, samples,
+                                                        params=SynthesisParams(block_mean_iterations=r)).image
+                         for r in rounds]
+            cells = [f"{psnr(image, scene.right):.2f}" for image in recovered]
             print(f"| {name} | {block} | {psnr(upsampled, scene.right):.2f} | " + " | ".join(cells) + " |", flush=True)
     return 0
 

@@ -47,7 +47,7 @@ from pathlib import Path
 
 import numpy as np
 
-from stereobudget.synthesis import _synthesis as synthesis
+from stereobudget import synthesis
 from stereobudget.io import write_samples
 from stereobudget.encoding import encode_image
 from stereobudget.metrics import psnr
@@ -137,10 +137,13 @@ def scene_rows(scene, strides, *, method: str) -> list[dict]:
         budget = len(write_samples(samples))
         decoded = decode(scene.left, samples, max_disp=scene.max_disp, method=method)
         disparity = decoded.disparity
-        plain = synthesis.recover_right(scene.left, disparity, samples, enhance=False, reinsert_samples=False)
+        plain = synthesis.recover_right(scene.left, disparity, samples,
+                                        params=synthesis.SynthesisParams(enhance=False, reinsert_samples=False))
         final = synthesis.recover_right(scene.left, disparity, samples)
-        no_reinsertion = synthesis.recover_right(scene.left, disparity, samples, reinsert_samples=False)
-        paper = synthesis.recover_right(scene.left, disparity, samples, enhance_shrinkage=None)
+        no_reinsertion = synthesis.recover_right(scene.left, disparity, samples,
+                                                 params=synthesis.SynthesisParams(reinsert_samples=False))
+        paper = synthesis.recover_right(scene.left, disparity, samples,
+                                        params=synthesis.SynthesisParams(enhance_shrinkage=None))
         ceiling = synthesis.recover_right(scene.left, scene.gt, samples)
         row = {
             "scene": scene.name, "stride": stride, "percent": 100.0 * samples.epsilon,

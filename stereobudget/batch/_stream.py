@@ -172,7 +172,7 @@ class _LeftFrames:
 def decode_stream(left: str, samples: str, *, disparity: str | None = None, preview: str | None = None,
                   right: str | None = None, max_disp=None, min_disp: int | None = None,
                   method: str | None = None, overwrite: bool = False, max_memory: int | None = None,
-                  disparity_format: str | None = None) -> Iterator[dict]:
+                  disparity_format: str | None = None, synthesis: dict | None = None) -> Iterator[dict]:
     """Decode every frame of a stream of ``.sbs`` frames in this process; yield a summary per frame.
 
     Parameters
@@ -189,7 +189,7 @@ def decode_stream(left: str, samples: str, *, disparity: str | None = None, prev
         per frame; ``-`` writes every frame to standard output, one image after another.
         A name that two frames would share (a plain name, or ``{stem}`` of one left image
         for all) is an error at the second of them.
-    max_disp, min_disp, method, overwrite, max_memory, disparity_format
+    max_disp, min_disp, method, overwrite, max_memory, disparity_format, synthesis
         As in :class:`~stereobudget.pipeline.DecodeJob`; ``max_disp="auto"`` estimates the
         range of every frame on its own.
 
@@ -228,7 +228,7 @@ def decode_stream(left: str, samples: str, *, disparity: str | None = None, prev
             written[key] = index
         job = DecodeJob(left=left_path, samples=label, method=method, max_disp=max_disp, min_disp=min_disp,
                         overwrite=overwrite, max_memory=max_memory, disparity_format=disparity_format,
-                        **outputs)
+                        synthesis=synthesis, **outputs)
         check_job_outputs(job)
         replace = prepare_outputs(list(job.outputs.values()), [left_path, *inputs], overwrite=overwrite,
                                    make_dirs=True, replace_existing=False)

@@ -67,7 +67,8 @@ def psnr_at_samples(left: np.ndarray, disparity: np.ndarray, samples) -> float:
     """
     if samples.pattern.kind == "downsample":
         return math.nan
-    from ..synthesis._synthesis import sample_arrays, warp_left_to_right
+    from ..synthesis._inpaint import sample_arrays
+    from ..synthesis._warp import warp_left_to_right
     try:
         rows, cols, values = sample_arrays(samples)
     except Exception:  # noqa: BLE001 -- a pattern without pixel positions: no check

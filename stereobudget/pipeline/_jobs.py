@@ -123,6 +123,10 @@ class DecodeJob:
         Memory limit of the decode in bytes (None: 75 % of the available memory).
     disparity_format : {"pfm", "png"} or None
         Format of a disparity map written to standard output (``disparity="-"``; None: PFM).
+    synthesis : dict or None
+        Keyword arguments of :class:`stereobudget.synthesis.SynthesisParams` for the
+        recovered right image (None: the defaults); plain values, so that the job stays
+        light to build and to send to a worker.
     """
 
     left: str | None
@@ -139,6 +143,7 @@ class DecodeJob:
     problem: str | None = None
     max_memory: int | None = None
     disparity_format: str | None = None
+    synthesis: dict | None = None
 
     @property
     def label(self) -> str:
@@ -167,17 +172,18 @@ def _as_image_dtype(image, dtype):
     return np.clip(np.rint(values), 0, top).astype(dtype)
 
 
-def recover_right_image(left, disparity, samples):
-    """Call :func:`stereobudget.synthesis.recover_right`; returns ``(image, extras)``.
+def recover_right_image(left, disparity, samples, *, synthesis: dict | None = None):
+    """Call :func:`stereobudget.synthesis.recover_right` with ``SynthesisParams(**synthesis)``;
+    returns ``(image, extras)``.
 
     ``extras`` holds the PSNR at the samples (dB; null when infinite), ``holes_fraction``
     and, under ``"_timings"``, the synthesis stages.
     """
     import math
 
-    from ..synthesis._synthesis import recover_right
+    from ..synthesis._recover import SynthesisParams, recover_right
 
-    recovered = recover_right(left, disparity, samples)
+    recovered = recover_right(left, disparity, samples, params=SynthesisParams(**(synthesis or {})))
     extras = {}
     for key in ("psnr_at_samples_before_enhancement", "psnr_at_samples_before_reinsertion"):
         value = float(getattr(recovered, key))
@@ -286,7 +292,7 @@ def decode_arrays(left, samples, job: DecodeJob, *, left_name: str, samples_name
     right_image = None
     if job.right is not None:
         t = time.perf_counter()
-        right_image, extras = recover_right_image(left, disparity, samples)
+        right_image, extras = recover_right_image(left, disparity, samples, synthesis=job.synthesis)
         right_image = _as_image_dtype(right_image, left.dtype)
         timings.update(extras.pop("_timings", {}))
         timings["right"] = time.perf_counter() - t

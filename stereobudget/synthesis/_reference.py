@@ -12,7 +12,7 @@ import math
 import numpy as np
 
 # Splat weights at or below this do not reach a right pixel: the fast splat's rule.
-from ._synthesis import _MIN_SPLAT_WEIGHT, DEFAULT_Z_TOLERANCE
+from ._warp import _MIN_SPLAT_WEIGHT, DEFAULT_Z_TOLERANCE
 
 
 def _linear_pieces(row_disp, z_tolerance):

@@ -372,3 +372,27 @@ def test_progress_bar_only_on_a_terminal(tmp_path):
     shown = stderr_on_a_terminal()
     assert "100%" in shown and "sb-encode" in shown
     assert stderr_on_a_terminal("-q") == ""
+
+
+def test_a_change_of_how_the_right_image_is_made_redoes_it(tmp_path):
+    left_dir, samples_dir = make_pairs(tmp_path, 1)
+    args = ["--left-dir", left_dir, "--samples-dir", samples_dir, "--max-disp", MAX_DISP,
+            "--right", tmp_path / "R" / "{stem}.png", "--json"]
+    first = invoke_decode(*args)
+    assert first.exit_code == 0, first.stderr
+    again = invoke_decode(*args)
+    assert [r["status"] for r in json_lines(again.stdout)] == ["skipped"]
+    plain = invoke_decode(*args, "--no-enhance")
+    assert plain.exit_code == 0, plain.stderr
+    (result,) = json_lines(plain.stdout)
+    assert result["status"] == "ok" and "synthesis.enhance" in result["redone"]
+    unwarped = invoke_decode(*args, "--warp", "nearest")
+    (result,) = json_lines(unwarped.stdout)
+    assert result["status"] == "ok" and "synthesis.warp_mode" in result["redone"]
+
+
+def test_synthesis_options_need_the_right_image(tmp_path):
+    left_dir, samples_dir = make_pairs(tmp_path, 1)
+    result = invoke_decode(left_dir / "f00.png", samples_dir / "f00.sbs", "--max-disp", MAX_DISP,
+                           "--disparity", tmp_path / "d.pfm", "--no-enhance")
+    assert result.exit_code == OptionError.exit_code and "--right" in result.stderr

@@ -234,8 +234,10 @@ def test_enhancement_raises_psnr_when_the_disparity_is_wrong(stride, min_gain):
     s = make_scene("planes", height=96, width=160, seed=4)
     samples = encode_image(s.right, pattern=grid(stride))
     d = perturbed_disparity(s)
-    plain = synthesis.recover_right(s.left, d, samples, enhance=False, reinsert_samples=False)
-    enhanced = synthesis.recover_right(s.left, d, samples, enhance=True, reinsert_samples=False)
+    plain = synthesis.recover_right(s.left, d, samples,
+                                    params=synthesis.SynthesisParams(enhance=False, reinsert_samples=False))
+    enhanced = synthesis.recover_right(s.left, d, samples,
+                                       params=synthesis.SynthesisParams(enhance=True, reinsert_samples=False))
     truth = s.right
     gain = psnr(enhanced.image, truth, mask=~plain.holes) - psnr(plain.image, truth, mask=~plain.holes)
     assert gain > min_gain
@@ -286,7 +288,8 @@ def test_coded_samples_are_trusted_only_as_far_as_their_coding_allows():
     lossy = read_samples(write_samples(exact, codec="webp", quality=60))
     if lossy.lossy:
         out = synthesis.recover_right(s.left, disparity, lossy)
-        kept = synthesis.recover_right(s.left, disparity, lossy, reinsert_samples=False)
+        kept = synthesis.recover_right(s.left, disparity, lossy,
+                                       params=synthesis.SynthesisParams(reinsert_samples=False))
         np.testing.assert_array_equal(out.image, kept.image)
 
 
@@ -344,7 +347,7 @@ def test_block_means_are_recovered_by_back_projection(block):
     s = make_scene("planes", height=96, width=160, seed=4)
     samples = encode_image(s.right, pattern=SamplingPattern("downsample", block, block))
     d = perturbed_disparity(s)
-    plain = synthesis.recover_right(s.left, d, samples, enhance=False)
+    plain = synthesis.recover_right(s.left, d, samples, params=synthesis.SynthesisParams(enhance=False))
     out = synthesis.recover_right(s.left, d, samples)
     assert out.image.shape == s.right.shape and out.image.dtype == np.uint8
     # The back-projection corrects the warp errors: better than warp + inpaint ...
@@ -353,3 +356,9 @@ def test_block_means_are_recovered_by_back_projection(block):
     error = np.abs(downsample_blocks(out.image, samples.pattern).astype(int) - samples.values.astype(int))
     assert np.mean(error) < 0.5 and error.max() <= 3
     assert out.psnr_at_samples_before_reinsertion > out.psnr_at_samples_before_enhancement
+
+
+def test_synthesis_params_refuse_an_unknown_warp_mode():
+    from stereobudget.errors import OptionError
+    with pytest.raises(OptionError, match="unknown warp mode 'cubic'"):
+        synthesis.SynthesisParams(warp_mode="cubic")
