@@ -7,13 +7,9 @@ from __future__ import annotations
 
 import os
 from pathlib import Path
-from typing import TYPE_CHECKING
 
 from ..io._atomic import STDIO, check_output_path
 from ..errors import OptionError, OutputError
-
-if TYPE_CHECKING:
-    from ._jobs import DecodeJob
 
 
 def prepare_outputs(outputs: list[str], inputs: list[str], *, overwrite: bool, make_dirs: bool,
@@ -45,7 +41,7 @@ def prepare_outputs(outputs: list[str], inputs: list[str], *, overwrite: bool, m
     return replace
 
 
-def _check_output_formats(job: DecodeJob) -> None:
+def _check_output_formats(job) -> None:
     """Refuse unknown output extensions before any work is done."""
     from ..io._disparity import DISPARITY_EXTENSIONS
 
@@ -68,8 +64,9 @@ def _check_output_formats(job: DecodeJob) -> None:
                           "use .png, .tif or .tiff", path=job.right)
 
 
-def check_job_outputs(job: DecodeJob) -> None:
-    """Refuse a job with no output, two outputs on one file, or an unknown output format."""
+def check_job_outputs(job) -> None:
+    """Refuse a :class:`~stereobudget.pipeline.DecodeJob` with no output, two outputs on one file, or an
+    unknown output format."""
     outputs = job.outputs
     if not outputs:
         raise OptionError("nothing to write: give --disparity, --preview and/or --right")
