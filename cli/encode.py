@@ -14,6 +14,7 @@ import logging
 import click
 
 from stereobudget.errors import OptionError
+from stereobudget.sampling import PATTERN_KINDS   # no numpy: --help stays light
 
 from . import _batch
 from . import _common as common
@@ -176,7 +177,7 @@ def _show_info(path, *, verify: bool) -> None:
 @click.option("--stride-y", type=_U16, default=None, help="Vertical spacing (overrides --stride).")
 @click.option("--offset", metavar="X,Y", default=None,
               help="Position of the first grid sample, 0 <= offset < stride.  [default: 0,0]")
-@click.option("--pattern", type=click.Choice(["grid", "jitter", "fps", "adaptive_fps", "downsample"]),
+@click.option("--pattern", type=click.Choice(PATTERN_KINDS),
               default="grid", show_default=True,
               help="grid: I2[oy::sy, ox::sx]; jitter: one pseudo-random pixel per cell; fps / "
                    "adaptive_fps: farthest point sampling with the grid's budget; downsample: "

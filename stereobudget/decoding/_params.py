@@ -88,7 +88,7 @@ class DecoderParams:
         Resolution of the bilateral grid of the Sparse fill: grid cells per spatial and
         per range sigma (:func:`stereobudget.fill.grid_geometry`).  One cell per
         sigma is Paris & Durand's sampling rate; the grid blur is narrowed so the
-        effective kernel keeps its sigma, and the sweep recorded in the commit history
+        effective kernel keeps its sigma, and the sweep in docs/results.md
         (``scripts/sweep.py``) finds every scene within 0.2 pp of 2 cells per
         sigma at strides 3, 5 and 8, for 1/8 of the grid cells.
     hybrid_aggregation : {"semiglobal_census", "semiglobal", "tree"}
