@@ -74,11 +74,6 @@ def resolve_codec(name: str) -> str:
     return name
 
 
-def container_bytes(value_bits: int) -> int:
-    """Bytes per kept value handed to a codec: 1 up to 8 bits, else 2."""
-    return 1 if value_bits <= 8 else 2
-
-
 def check_coding(*, codec: str, value_bits: int, quality: int, dtype_bytes: int, pattern_kind: str,
                  channels: int) -> None:
     """OptionError when this coding cannot apply to such samples (before any work)."""
