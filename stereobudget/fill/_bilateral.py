@@ -37,7 +37,7 @@ from numba import get_num_threads, njit, prange
 
 from .._kernels._jit import NO_REFCOUNTS
 from .._kernels._simd import MAX_PERIOD_LANES, PERIOD_READ_PAST, periodic_corner_sum
-from ..cost._sparse import LeftPixels, RightSamples, SparseCostTerms, SparseTerms, left_terms, sample_cost
+from ..cost._sparse import LeftPixels, RightSamples, SparseCostTerms, left_terms, sample_cost
 from ._geometry import GridGeometry, grid_geometry
 from .._kernels._scratch import empty_volume, recycle, zeroed_volume
 
@@ -644,10 +644,10 @@ def _splat_cost(values_flat, band_flat, offsets, band_offsets, weights, layer, c
             band_flat[np.uint64(band_offsets[c] + layer)] += weights[c]
 
 
-class SplatTerms(NamedTuple):
-    """The scalars every splat kernel of the Sparse DSI takes: Eq. (2)'s terms and the grid's scales."""
+class GridScales(NamedTuple):
+    """The grid's scales, as the splat kernels take them beside Eq. (2)'s terms (:class:`stereobudget.cost.SparseTerms`:
+    two flat records, since numba's parallel loops take no record nested in another)."""
 
-    cost: SparseTerms   # Eq. (2)'s terms (stereobudget.cost.sample_cost)
     inv_cs: float       # grid cells per pixel
     inv_cr: float       # grid cells per gray level
 
@@ -671,12 +671,12 @@ class LatticeGrids(NamedTuple):
     channel_of_residue: np.ndarray  # int64 (stride,): base channel of x % stride (-1: none)
 
 
-def _splat_terms(terms: SparseCostTerms, geom: GridGeometry) -> SplatTerms:
-    return SplatTerms(terms.kernel_terms(), 1.0 / geom.cell_s, 1.0 / geom.cell_r)
+def _grid_scales(geom: GridGeometry) -> GridScales:
+    return GridScales(1.0 / geom.cell_s, 1.0 / geom.cell_r)
 
 
 @njit(cache=True, parallel=True)
-def _splat_sparse_dsi_split(rows, cols, samples, pixels, min_disp, terms, grid_val, band_w, blocks):
+def _splat_sparse_dsi_split(rows, cols, samples, pixels, min_disp, cost_terms, scales, grid_val, band_w, blocks):
     """Splat Eq. (2): right sample k at (row, col) meets left pixel (row, col + d) in layer d.
 
     The weights of layer i are written only into x-cells [0, B) of ``band_w`` (B = its
@@ -687,10 +687,11 @@ def _splat_sparse_dsi_split(rows, cols, samples, pixels, min_disp, terms, grid_v
     splats all samples into its own layers, so no two threads add into the same grid
     value and every value receives its samples in the same order as on one thread (the
     result does not depend on the thread count).  ``samples``: :class:`RightSamples`,
-    ``pixels``: :class:`LeftPixels`, ``terms``: :class:`SplatTerms`.
+    ``pixels``: :class:`LeftPixels`, ``cost_terms``: :class:`stereobudget.cost.SparseTerms` (Eq. 2's, applied by
+    :func:`stereobudget.cost.sample_cost`), ``scales``: :class:`GridScales`.
     """
     guide = pixels.guide
-    cost_terms, inv_cs, inv_cr = terms
+    inv_cs, inv_cr = scales
     gy_n, gx_n, gz_n, num_disp = grid_val.shape
     w = guide.shape[1]
     blocks = max(1, min(blocks, num_disp))
@@ -718,7 +719,8 @@ def _splat_sparse_dsi_split(rows, cols, samples, pixels, min_disp, terms, grid_v
 
 
 @njit(cache=True, inline="always")
-def _splat_lattice_rows(r_lo, r_hi, cell_lo, cell_hi, lattice, samples, pixels, min_disp, terms, grids):
+def _splat_lattice_rows(r_lo, r_hi, cell_lo, cell_hi, lattice, samples, pixels, min_disp, cost_terms, scales,
+                        grids):
     """Splat sample rows ``[r_lo, r_hi)`` into the grids' cells whose y index lies in
     ``[cell_lo, cell_hi]``: every layer's cost into ``grid_val``, the band's weights into
     ``band_w`` and each left pixel's mask weight into its base channel of ``base_w``.
@@ -729,13 +731,13 @@ def _splat_lattice_rows(r_lo, r_hi, cell_lo, cell_hi, lattice, samples, pixels, 
     into stay in cache.  Base channel ``channel_of_residue[x % stride]`` holds the mask of
     the lattice columns congruent to x (-1: none).  Sample ``k = r * n_cols + j`` is at
     column ``offset_x + j * stride``; ``min_disp >= 0``.  ``lattice``: :class:`LatticeRows`,
-    ``grids``: :class:`LatticeGrids`; ``samples``, ``pixels``, ``terms`` as
+    ``grids``: :class:`LatticeGrids`; ``samples``, ``pixels``, ``cost_terms``, ``scales`` as
     :func:`_splat_sparse_dsi_split`.
     """
     sample_rows, offset_x, stride, n_cols = lattice
     grid_val, band_w, base_w, channel_of_residue = grids
     guide = pixels.guide
-    cost_terms, inv_cs, inv_cr = terms
+    inv_cs, inv_cr = scales
     gy_n, gx_n, gz_n, num_disp = grid_val.shape
     w = guide.shape[1]
     band_n = band_w.shape[1]
@@ -802,7 +804,8 @@ def _splat_lattice_rows(r_lo, r_hi, cell_lo, cell_hi, lattice, samples, pixels, 
 
 
 @njit(cache=True, parallel=True)
-def _splat_lattice(lattice, samples, pixels, min_disp, terms, grids, part_rows, shared_cells, zero_cells):
+def _splat_lattice(lattice, samples, pixels, min_disp, cost_terms, scales, grids, part_rows, shared_cells,
+                   zero_cells):
     """All sample rows of a full lattice into the value, band and base-weight grids, the
     rows cut into parts ``[part_rows[p], part_rows[p + 1])``, one per thread; part ``p``
     shares the rows of cells up to ``shared_cells[p]`` with the part above (-1: none).
@@ -835,11 +838,11 @@ def _splat_lattice(lattice, samples, pixels, min_disp, terms, grids, part_rows, 
         base_flat[lo * base_row:hi * base_row] = 0.0
         # Cells up to the last one the part above reaches (shared_cells[p]) wait for the second loop.
         _splat_lattice_rows(part_rows[p], part_rows[p + 1], shared_cells[p] + 1, gy_n, lattice, samples, pixels,
-                            min_disp, terms, grids)
+                            min_disp, cost_terms, scales, grids)
     for p in prange(parts):
         if shared_cells[p] >= 0:
             _splat_lattice_rows(part_rows[p], part_rows[p + 1], 0, shared_cells[p], lattice, samples, pixels,
-                                min_disp, terms, grids)
+                                min_disp, cost_terms, scales, grids)
 
 
 def _lattice_parts(sample_rows: np.ndarray, inv_cs: float, gy: int, parts: int) -> tuple:
@@ -931,7 +934,7 @@ def _lattice_sparse_dsi_grids(left, guide, rows, cols, samples, left_codes, *, s
     channel_of_residue[(offset_x + min_disp + np.arange(base_w.shape[3], dtype=np.int64)) % stride] = \
         np.arange(base_w.shape[3])
     _splat_lattice(LatticeRows(sample_rows, offset_x, int(stride), n_cols), samples,
-                   LeftPixels(left, guide, left_codes), int(min_disp), _splat_terms(terms, geom),
+                   LeftPixels(left, guide, left_codes), int(min_disp), terms.kernel_terms(), _grid_scales(geom),
                    LatticeGrids(grid_val, band_w, base_w, channel_of_residue),
                    *_lattice_parts(sample_rows, inv_cs, gy, get_num_threads()))
     return _slice_grids(_blur_grid(grid_val, geom), _blur_base_grid(base_w, geom), _blur_grid(band_w, geom), geom,
@@ -1085,7 +1088,8 @@ def sparse_dsi_grids(left: np.ndarray, guide: np.ndarray, rows: np.ndarray, cols
     grid_val = zeroed_volume(geom.shape + (num_disp,))
     grid_w = zeroed_volume(geom.shape + (num_disp,))
     _splat_sparse_dsi_split(np.asarray(rows, np.int64), np.asarray(cols, np.int64), samples,
-                            LeftPixels(left, guide, left_codes), int(min_disp), _splat_terms(terms, geom),
+                            LeftPixels(left, guide, left_codes), int(min_disp), terms.kernel_terms(),
+                            _grid_scales(geom),
                             grid_val, grid_w, get_num_threads())
     return _slice_grids(_blur_grid(grid_val, geom), _blur_base_grid(grid_w, geom), None, geom,
                         density=len(rows) / float(h * w), missing_value=terms.truncation)
