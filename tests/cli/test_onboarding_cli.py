@@ -6,11 +6,15 @@ from __future__ import annotations
 import os
 import subprocess
 import sys
+import tempfile
 
 
 def run(code_or_args, *, env=None, module=False):
     args = [sys.executable, "-m", *code_or_args] if module else [sys.executable, "-c", code_or_args]
-    return subprocess.run(args, capture_output=True, text=True, timeout=300, env=dict(os.environ, **(env or {})))
+    # Away from the repository root, whose source folder would shadow the installed package
+    # (the commands install as stereobudget.cli from the top-level cli/ folder).
+    return subprocess.run(args, capture_output=True, text=True, timeout=300, env=dict(os.environ, **(env or {})),
+                          cwd=tempfile.gettempdir())
 
 
 def test_bash_completion_of_options_and_choices():
