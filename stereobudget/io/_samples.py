@@ -680,30 +680,36 @@ def header_dict(fields: dict) -> dict:
     }
 
 
-def probe(source, *, verify_payload: bool = False, name: str | None = None) -> dict:
+def probe(source, *, verify_payload: bool = False, decode_payload: bool = False, name: str | None = None) -> dict:
     """Validate a sample file's header (and optionally payload) without decoding values.
 
     Parameters
     ----------
     source : bytes-like, str or os.PathLike
         The file contents, a path, or ``-`` for standard input.  For a path only the
-        header is read (plus the payload when ``verify_payload``).
+        header is read (plus the payload when ``verify_payload`` or ``decode_payload``).
     verify_payload : bool
-        Also check the payload CRC-32.
+        Also check the payload CRC-32 (the container's checksum of the coded bytes).
+    decode_payload : bool
+        Also decode the payload and check the decoded values exactly as
+        :func:`read_samples` does (a codec this install lacks, a payload that does not
+        decode, values that do not match their checksum are errors).
     name : str, optional
         Name used in messages.
 
     Returns
     -------
     dict
-        Every header field, ``epsilon`` (samples / pixels) and ``file_size``; JSON-able.
-        The size of the file is always checked against the header.
+        Every header field, ``epsilon`` (samples / pixels), ``file_size`` and
+        ``payload_verified``: true only when the payload was decoded (``decode_payload``);
+        JSON-able.  The size of the file is always checked against the header.
 
     Raises
     ------
     SampleFileError
         As :func:`read_samples`.
     """
+    verify_payload = verify_payload or decode_payload
     if isinstance(source, (bytes, bytearray, memoryview)) or str(source) == STDIO:
         if not isinstance(source, (bytes, bytearray, memoryview)):
             name = name or display_name(source)
@@ -711,20 +717,27 @@ def probe(source, *, verify_payload: bool = False, name: str | None = None) -> d
         name = name or "<bytes>"
         view = memoryview(source).cast("B")
         if verify_payload:
-            return header_dict(_validate_file(view, name)[0])
-        return header_dict(_parse_header(view, name))
+            info = header_dict(_validate_file(view, name)[0])
+        else:
+            info = header_dict(_parse_header(view, name))
+        if decode_payload:
+            read_samples(view, source=name)
+        info["payload_verified"] = decode_payload
+        return info
     name = name or str(source)
     path = Path(source)
     if verify_payload:
         data = read_input_bytes(path, error=NotASampleFileError)
-        return header_dict(_validate_file(memoryview(data).cast("B"), name)[0])
+        return probe(data, verify_payload=True, decode_payload=decode_payload, name=name)
     try:
         with open(path, "rb") as handle:
             size = os.fstat(handle.fileno()).st_size
             head = handle.read(MAX_HEADER_LENGTH)
     except OSError as exc:
         raise reading_error(exc, NotASampleFileError, name) from None
-    return header_dict(_parse_header(memoryview(head), name, file_size=size))
+    info = header_dict(_parse_header(memoryview(head), name, file_size=size))
+    info["payload_verified"] = False
+    return info
 
 
 # =====================================================================================
@@ -733,7 +746,13 @@ def probe(source, *, verify_payload: bool = False, name: str | None = None) -> d
 
 @dataclass(frozen=True)
 class EncodeReport:
-    """What :func:`encode_file` did (JSON-able through :meth:`as_dict`)."""
+    """What :func:`encode_file` did (JSON-able through :meth:`as_dict`).
+
+    Two fractions describe the file: ``pixel_fraction``, the pixels sampled (samples /
+    pixels, the paper's epsilon; also under its older name ``epsilon``), and
+    ``bytes_fraction``, the file's bytes over the raw image's (W x H x channels x bytes per
+    value), the quantity a ``--epsilon`` / ``size_fraction`` budget bounds.
+    """
 
     source: str
     output: str
@@ -757,6 +776,8 @@ class EncodeReport:
     value_bits: int = 8
     quality: int = 0
     bits_per_pixel: float = 0.0
+    pixel_fraction: float = 0.0
+    bytes_fraction: float = 0.0
 
     def as_dict(self) -> dict:
         return dict(self.__dict__)
@@ -802,6 +823,7 @@ def encode_file(source, output, *, pattern: SamplingPattern, raw_size: tuple[int
         Bad output path (checked before the input is read), unreadable input, or a
         pattern that leaves no sample on this image.
     """
+    check_budget(size=size, size_fraction=size_fraction)
     check_output_path(output, [source], overwrite)
     name = display_name(source)
     log.debug("reading %s", name)
@@ -817,6 +839,26 @@ def encode_file(source, output, *, pattern: SamplingPattern, raw_size: tuple[int
                                 pix_fmt=pix_fmt, **coding)
     write_output_bytes(output, data, overwrite=overwrite)
     return report
+
+
+def check_budget(*, size: int | None = None, size_fraction: float | None = None) -> None:
+    """Refuse a byte budget that is not a positive size, or a fraction outside (0, 1] (NaN among them).
+
+    Raises
+    ------
+    OptionError
+        As the ``--size`` / ``--epsilon`` options of ``sb-encode`` would say it.
+    """
+    if size is not None and not (isinstance(size, int) and size >= 1):
+        raise OptionError(f"--size must be a positive number of bytes, got {size!r}")
+    if size_fraction is not None:
+        try:
+            fraction = float(size_fraction)
+        except (TypeError, ValueError):
+            fraction = float("nan")
+        if not 0.0 < fraction <= 1.0:        # also false for NaN
+            raise OptionError(f"--epsilon must be a fraction of the raw image bytes in (0, 1], "
+                              f"got {size_fraction!r}")
 
 
 def encode_frame(frame, *, name: str, output, pattern: SamplingPattern, raw_size: tuple[int, int] | None = None,
@@ -846,6 +888,7 @@ def encode_frame(frame, *, name: str, output, pattern: SamplingPattern, raw_size
     else:
         image, channel_order = frame
     height, width = image.shape[:2]
+    check_budget(size=size, size_fraction=size_fraction)
     if size_fraction is not None:
         size = int(size_fraction * image.size * image.dtype.itemsize)
     if size is not None:
@@ -918,4 +961,6 @@ def _report(name: str, output, *, width: int, height: int, channels: int, channe
         sample_count=sample_count, epsilon=sample_count / float(height * width),
         header_bytes=HEADER_SIZE_V1_0, payload_bytes=file_size - HEADER_SIZE_V1_0, file_size=file_size,
         codec=codec, value_bits=value_bits or 8 * _DTYPE_CODE_BY_NAME[dtype], quality=quality,
-        bits_per_pixel=8.0 * file_size / float(width * height))
+        bits_per_pixel=8.0 * file_size / float(width * height),
+        pixel_fraction=sample_count / float(height * width),
+        bytes_fraction=file_size / float(width * height * channels * _DTYPE_CODE_BY_NAME[dtype]))

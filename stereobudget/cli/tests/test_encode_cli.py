@@ -118,7 +118,7 @@ def test_verbose_logs_epsilon_and_size(png, tmp_path):
     proc = run(png[0], "-o", tmp_path / "v.sbs", "-v")
     assert proc.returncode == 0
     err = proc.stderr.decode()
-    assert "epsilon 4.91 %" in err and "bytes (header 80 + payload" in err
+    assert "(4.91 % of the pixels)" in err and "header 80 + payload" in err
     quiet = run(png[0], "-o", tmp_path / "q.sbs")
     assert quiet.returncode == 0 and quiet.stderr == b"" and quiet.stdout == b""
 
