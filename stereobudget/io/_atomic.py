@@ -149,11 +149,11 @@ def atomic_write(path, *, overwrite: bool = False, fsync: bool = True) -> Iterat
     place with the other outputs of the block when the block ends.
     """
     target = Path(path)
-    if not overwrite and _exists(target, path):
-        raise OutputError("output exists (pass --overwrite to replace it)", path=str(path))
     name_problem = _name_problem(target)
     if name_problem:
         raise OutputError(name_problem, path=str(path))
+    if not overwrite and _exists(target, path):
+        raise OutputError("output exists (pass --overwrite to replace it)", path=str(path))
     tmp = None
     try:
         with interrupts_deferred():
@@ -268,6 +268,10 @@ def _name_problem(target: Path) -> str | None:
 def _path_error(exc: OSError, target: Path, path) -> OutputError:
     """The one-line :class:`OutputError` for an output path the system refused."""
     if exc.errno == errno.ENAMETOOLONG:
+        longest = max(target.parts, key=lambda part: len(os.fsencode(part)), default="")
+        if len(os.fsencode(longest)) > NAME_MAX:
+            return OutputError(f"the folder name {longest[:20]!r}... is too long ({len(os.fsencode(longest))} "
+                               f"bytes; the filesystem allows at most {NAME_MAX} per name)", path=str(path))
         return OutputError(f"path too long ({len(os.fsencode(str(target)))} bytes): "
                            f"{exc.strerror}", path=str(path))
     if exc.errno == errno.ELOOP:

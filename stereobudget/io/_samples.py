@@ -852,10 +852,9 @@ def check_budget(*, size: int | None = None, size_fraction: float | None = None)
     if size is not None and not (isinstance(size, int) and size >= 1):
         raise OptionError(f"--size must be a positive number of bytes, got {size!r}")
     if size_fraction is not None:
-        try:
-            fraction = float(size_fraction)
-        except (TypeError, ValueError):
-            fraction = float("nan")
+        import numbers
+        real = isinstance(size_fraction, numbers.Real) and not isinstance(size_fraction, bool)
+        fraction = float(size_fraction) if real else float("nan")
         if not 0.0 < fraction <= 1.0:        # also false for NaN
             raise OptionError(f"--epsilon must be a fraction of the raw image bytes in (0, 1], "
                               f"got {size_fraction!r}")
