@@ -152,8 +152,12 @@ def atomic_write(path, *, overwrite: bool = False, fsync: bool = True) -> Iterat
     name_problem = _name_problem(target)
     if name_problem:
         raise OutputError(name_problem, path=str(path))
-    if not overwrite and _exists(target, path):
+    info = _stat(target, path)
+    if info is not None and not overwrite:
         raise OutputError("output exists (pass --overwrite to replace it)", path=str(path))
+    if info is not None and not stat.S_ISREG(info.st_mode):
+        raise OutputError("output is a directory, device, FIFO or socket, not a regular file",
+                          path=str(path))
     tmp = None
     try:
         with interrupts_deferred():
@@ -236,15 +240,13 @@ def written_together() -> Iterator[None]:
         raise
 
 
-def _exists(target: Path, path) -> bool:
+def _stat(target: Path, path) -> os.stat_result | None:
+    """``os.stat`` of an output, None when there is none yet; OutputError when the path is unusable."""
     try:
-        os.stat(target)
-        return True
-    except FileNotFoundError:
-        return False
+        return os.stat(target)
+    except (FileNotFoundError, NotADirectoryError):
+        return None
     except OSError as exc:
-        if exc.errno == errno.ENOTDIR:
-            return False
         raise _path_error(exc, target, path) from None
 
 
@@ -560,6 +562,10 @@ def check_output_path(output, inputs: Iterable, overwrite: bool) -> None:
         raise _path_error(exc, out, output) from None
     if info is not None and stat.S_ISDIR(info.st_mode):
         raise OutputError("output is a directory; give a file name", path=str(output))
+    if info is not None and not stat.S_ISREG(info.st_mode):
+        # An atomic write would replace the device or FIFO itself by a regular file.
+        raise OutputError("output is a device, FIFO or socket, not a regular file; write to '-' and "
+                          "redirect standard output there instead", path=str(output))
     if info is not None and not overwrite:
         raise OutputError("output exists (pass --overwrite to replace it)", path=str(output))
     _probe_directory(out, output)

@@ -243,6 +243,9 @@ def test_output_paths_the_system_refuses(tmp_path):
     if os.path.isdir("/proc"):
         with pytest.raises(OutputError, match="this filesystem does not allow it"):
             check_output_path("/proc/d.pfm", [], False)
+    if os.path.exists("/dev/null"):          # --overwrite must not replace a device by a file
+        with pytest.raises(OutputError, match="not a regular file"):
+            check_output_path("/dev/null", [], True)
 
 
 def test_closed_standard_streams_are_named(monkeypatch):
