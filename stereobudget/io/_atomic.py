@@ -222,7 +222,7 @@ def written_together() -> Iterator[None]:
     moved: list = []
     try:
         with interrupts_deferred():
-            for index, (tmp, target, overwrite) in enumerate(staged):
+            for tmp, target, overwrite in staged:
                 existed = overwrite and target.exists()
                 try:
                     _move_into_place(tmp, target, overwrite=overwrite)
