@@ -155,16 +155,30 @@ def test_a_full_disk_at_fsync_of_a_stream_file_leaves_nothing(pair, tmp_path, mo
 def test_outputs_are_checked_before_any_input_is_read(pair, tmp_path):
     (tmp_path / "f").write_bytes(b"a file, not a folder")
     # LEFT is a pipe that never ends: a command that read it first would never return.
-    proc = subprocess.Popen([SB_DECODE, "-", str(pair / "S.sbs"), "--max-disp", "8", "--disparity", "ok.pfm",
-                             "--preview", "ok.png", "--right", "f/r.png"], cwd=tmp_path, stdin=subprocess.PIPE,
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    proc = _with_endless_stdin([SB_DECODE, "-", str(pair / "S.sbs"), "--max-disp", "8", "--disparity", "ok.pfm",
+                                "--preview", "ok.png", "--right", "f/r.png"], tmp_path)
+    assert_one_line(proc, OutputError.exit_code, "f/r.png", "'f' is a file, not a directory")
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["f"]
+
+
+def _with_endless_stdin(args, cwd: Path) -> subprocess.CompletedProcess:
+    """Run ``args`` with standard input a pipe that never ends: a command that read it would not return."""
+    proc = subprocess.Popen(args, cwd=cwd, stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                            text=True)
     try:
-        _, err = proc.communicate(timeout=600)
+        out, err = proc.communicate(timeout=600)
     finally:
         proc.kill()
-    assert_one_line(subprocess.CompletedProcess(proc.args, proc.returncode, "", err), OutputError.exit_code,
-                    "f/r.png", "'f' is a file, not a directory")
-    assert sorted(p.name for p in tmp_path.iterdir()) == ["f"]
+    return subprocess.CompletedProcess(args, proc.returncode, out, err)
+
+
+def test_a_stream_checks_its_outputs_before_the_first_frame(pair, tmp_path):
+    with ThreadPoolExecutor(max_workers=2) as pool:
+        encode, decode = pool.map(lambda args: _with_endless_stdin(args, tmp_path), [
+            [SB_ENCODE, "-", "--raw", "64x48", "--pix-fmt", "gray8", "-o", f"S/{{index}}{LONG}.sbs"],
+            [SB_DECODE, str(pair / "L.png"), "-", "--max-disp", "8", "--disparity", f"D/{{index}}{LONG}.pfm"]])
+    assert_one_line(encode, OutputError.exit_code, f"0{LONG}.sbs", "file name too long")
+    assert_one_line(decode, OutputError.exit_code, f"0{LONG}.pfm", "file name too long")
 
 
 def _sizes(folder: Path) -> dict:
