@@ -72,7 +72,7 @@ def run_batch(jobs: list, fn, *, workers: int | None, scheduler: str | None, as_
                         on_result(item)
                 if as_json:
                     common.emit_json(item)
-                    sys.stdout.flush()
+                    common.flush_stdout()
                 if bar is not None:
                     bar.update(1)
     total = sum(counts.values())

@@ -31,7 +31,7 @@ import click
 
 from stereobudget import __version__
 from stereobudget.io import redeliver_swallowed_interrupts
-from stereobudget.errors import EXIT_INTERRUPTED, MemoryLimitError, StereoBudgetError
+from stereobudget.errors import EXIT_INTERRUPTED, MemoryLimitError, OutputError, StereoBudgetError
 
 #: Exit status of a command whose standard output was closed early (128 + SIGPIPE, like
 #: a process killed by the signal).
@@ -58,8 +58,46 @@ def _silence_stdout() -> None:
     try:
         devnull = os.open(os.devnull, os.O_WRONLY)
         os.dup2(devnull, sys.stdout.fileno())
-    except (OSError, ValueError):
+    except (OSError, ValueError, AttributeError):
         pass
+
+
+def flush_stdout() -> None:
+    """Flush standard output; a full disk there (``> /dev/full``) is an :class:`OutputError`.
+
+    A closed pipe still raises :class:`BrokenPipeError` (exit 141, quietly); a closed
+    standard output (``>&-``, ``sys.stdout`` is None) has nothing to flush.
+    """
+    if sys.stdout is None:
+        return
+    try:
+        sys.stdout.flush()
+    except BrokenPipeError:
+        raise
+    except OSError as exc:
+        from stereobudget.io import stdout_error
+        raise stdout_error(exc) from None
+
+
+def guard_standard_descriptors() -> None:
+    """Put ``/dev/null`` on standard descriptors the command was started without (``>&-``, ``<&-``).
+
+    Python sets ``sys.stdout`` (or ``sys.stdin``, ``sys.stderr``) to None then, and that
+    stays: writing ``-`` reports the closed stream.  But the next file opened would get the
+    free descriptor, and whatever writes to descriptor 1 or 2 (a C library's message) would
+    land in an output file; ``/dev/null`` keeps the number taken.
+    """
+    for fd in (0, 1, 2):
+        try:
+            os.fstat(fd)
+        except OSError:
+            try:
+                null = os.open(os.devnull, os.O_RDWR)
+            except OSError:
+                return
+            if null != fd:
+                os.dup2(null, fd)
+                os.close(null)
 
 
 def handle_errors(func):
@@ -69,10 +107,12 @@ def handle_errors(func):
     def wrapper(*args, **kwargs):
         try:
             result = func(*args, **kwargs)
-            # Flush here so a closed pipe is reported by us, not at interpreter exit.
-            sys.stdout.flush()
+            # Flush here so a closed pipe or a full disk is reported by us, not at interpreter exit.
+            flush_stdout()
             return result
         except StereoBudgetError as exc:
+            if exc.path == "<stdout>":
+                _silence_stdout()       # what it could not take must not be retried at exit
             error_line(str(exc))
             sys.exit(exc.exit_code)
         except MemoryError:
@@ -96,6 +136,7 @@ def make_main(command: click.Command, name: str):
     """Console-script entry point for ``command``: SIGTERM handling + fixed prog name."""
 
     def main(argv=None):
+        guard_standard_descriptors()
         # SIGTERM takes the same clean path as Ctrl-C (temporary files removed, exit 130).
         try:
             signal.signal(signal.SIGTERM, _raise_keyboard_interrupt)
@@ -158,6 +199,31 @@ json_option = click.option("--json", "as_json", is_flag=True,
                            help="Print a one-line JSON summary on stdout.")
 
 
+def failure_fields(exc: StereoBudgetError) -> dict:
+    """``error``, ``error_class`` and ``exit_code`` of a failed file, as a batch's ``--json`` gives them."""
+    return {"error": str(exc), "error_class": type(exc).__name__, "exit_code": exc.exit_code}
+
+
+def require_stdout(what: str) -> None:
+    """Refuse ``what`` (e.g. ``--json``) at once when standard output is closed (``>&-``)."""
+    if sys.stdout is None:
+        raise OutputError(f"standard output is closed; {what} has nowhere to go", path="<stdout>")
+
+
 def emit_json(obj) -> None:
-    """Print ``obj`` as one line of JSON on stdout."""
-    click.echo(json.dumps(obj, sort_keys=False, separators=(", ", ": ")))
+    """Print ``obj`` as one line of JSON on stdout.
+
+    Raises
+    ------
+    OutputError
+        Standard output is closed or cannot take the line (a full disk).
+    """
+    require_stdout("--json")
+    line = json.dumps(obj, sort_keys=False, separators=(", ", ": "))
+    try:
+        click.echo(line)
+    except BrokenPipeError:
+        raise
+    except OSError as exc:
+        from stereobudget.io import stdout_error
+        raise stdout_error(exc) from None

@@ -78,7 +78,8 @@ def _exit_without_teardown(code) -> None:
     atexit._run_exitfuncs()
     for stream in (sys.stdout, sys.stderr):
         try:
-            stream.flush()
+            if stream is not None:        # None: started with the descriptor closed
+                stream.flush()
         except (OSError, ValueError):     # a closed pipe: nothing more can be said on it
             pass
     os._exit(status)

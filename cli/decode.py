@@ -12,7 +12,7 @@ import logging
 
 import click
 
-from stereobudget.errors import OptionError
+from stereobudget.errors import OptionError, StereoBudgetError
 from stereobudget.decoding import DEFAULT_METHOD, METHODS
 
 from . import _batch
@@ -258,6 +258,8 @@ def decode_command(inputs, left_dir, samples_dir, manifest, max_disp, min_disp, 
             raise OptionError("'-' (standard output) works with a single pair only")
     if as_json and "-" in templates.values():
         raise OptionError("--json cannot be combined with an output on '-' (stdout carries the image)")
+    if as_json:
+        common.require_stdout("--json")
     if disparity_format is not None and disparity != "-":
         raise OptionError("--format sets the format of --disparity - (standard output); a file's format "
                           "follows its extension")
@@ -277,11 +279,22 @@ def decode_command(inputs, left_dir, samples_dir, manifest, max_disp, min_disp, 
             overwrite=overwrite, batch=batch, problem=pair.problem, max_memory=max_memory,
             disparity_format=disparity_format, synthesis=synthesis, **outputs))
     if not batch:
-        summary = decode_file(job_list[0])
-        log.info("%s + %s -> %s: %dx%d, epsilon %.2f %%, %s, disparity %d..%d (%s), %.2f s", summary["left"],
-                 summary["samples"], ", ".join(summary["outputs"].values()), summary["width"], summary["height"],
-                 100 * summary["epsilon"], summary["method"], summary["min_disp"], summary["max_disp"],
-                 summary["range_source"], summary["timings"]["total"])
+        job = job_list[0]
+        try:
+            summary = decode_file(job)
+        except StereoBudgetError as exc:
+            if as_json and exc.path != "<stdout>":
+                # The same record a batch gives a failed pair; the error line and code follow.
+                from stereobudget.io import display_name
+                common.emit_json({"status": "failed",
+                                  "left": display_name(job.left) if job.left else None,
+                                  "samples": display_name(job.samples) if job.samples else None,
+                                  "outputs": job.outputs, **common.failure_fields(exc)})
+            raise
+        log.info("%s + %s -> %s: %dx%d, %.2f %% of the pixels sampled, %s, disparity %d..%d (%s), %.2f s",
+                 summary["left"], summary["samples"], ", ".join(summary["outputs"].values()), summary["width"],
+                 summary["height"], 100 * summary["pixel_fraction"], summary["method"], summary["min_disp"],
+                 summary["max_disp"], summary["range_source"], summary["timings"]["total"])
         report_warnings(summary)
         if as_json:
             common.emit_json(summary)

@@ -27,6 +27,24 @@ _RAW_PIX_FMTS = ("gray8", "rgb24", "bgr24", "gray16le",   # = imageio.RAW_PIXEL_
 _U16 = click.IntRange(1, 65535)
 
 
+class _Fraction(click.ParamType):
+    """``--epsilon``: a number in (0, 1]; NaN and infinities are refused like any other value outside."""
+
+    name = "FRACTION"
+
+    def convert(self, value, param, ctx):
+        if isinstance(value, float):
+            number = value
+        else:
+            try:
+                number = float(str(value).strip())
+            except ValueError:
+                self.fail(f"{value!r} is not a number", param, ctx)
+        if not 0.0 < number <= 1.0:      # also false for nan
+            self.fail(f"{value!r} is not a fraction in the range 0<x<=1", param, ctx)
+        return number
+
+
 def _parse_offset(text: str) -> tuple[int, int]:
     parts = text.replace(" ", "").split(",")
     if len(parts) != 2 or not all(p.isdigit() for p in parts):
@@ -150,17 +168,18 @@ def _encode_stream(inputs, output, *, pattern, raw_size, pix_fmt, overwrite, cod
     log.info("%d frame(s) in %.3f s (%.1f frames/s)", frames, seconds, frames / max(seconds, 1e-9))
 
 
-def _show_info(path, *, verify: bool) -> None:
+def _show_info(path, *, verify: bool, decode: bool) -> None:
     """One JSON line per frame: one for a file, one per frame of a stream (or of standard input)."""
     from stereobudget.io import holds_several_frames, probe
     if path != "-" and not holds_several_frames(path):
-        common.emit_json(probe(path, verify_payload=verify))
+        common.emit_json(probe(path, verify_payload=verify, decode_payload=decode))
         return
     from stereobudget.io import sample_frames
     from stereobudget.io._stream import frame_label
     name = "<stdin>" if path == "-" else path
     for index, frame in enumerate(sample_frames(path)):
-        info = probe(frame, verify_payload=verify, name=frame_label(name, index) if index else name)
+        info = probe(frame, verify_payload=verify, decode_payload=decode,
+                     name=frame_label(name, index) if index else name)
         info["frame"] = index
         common.emit_json(info)
 
@@ -203,12 +222,15 @@ def _show_info(path, *, verify: bool) -> None:
               help="Byte budget of the file (e.g. 20000): the densest grid stride and coding "
                    "that fit (raw, or lossless keeping 8 to 5 bits, unless --codec / --bits say "
                    "otherwise); never exceeded.")
-@click.option("--epsilon", "size_fraction", type=click.FloatRange(0, 1, min_open=True), default=None,
+@click.option("--epsilon", "size_fraction", type=_Fraction(), default=None,
               help="Byte budget as a fraction of the raw image bytes (W x H x channels x bytes).")
 @click.option("--info", "info_file", metavar="FILE.sbs", default=None,
               help="Validate a sample file and print its header as one JSON line; no encoding.")
 @click.option("--header-only", is_flag=True,
               help="With --info: check the header and file size but not the payload checksum.")
+@click.option("--check", "check_payload", is_flag=True,
+              help="With --info: also decode the payload and check the decoded values, as sb-decode "
+                   "would (\"payload_verified\": true); without it the values are not decoded.")
 @_batch.jobs_options
 @common.overwrite_option
 @common.json_option
@@ -217,7 +239,7 @@ def _show_info(path, *, verify: bool) -> None:
 @common.handle_errors
 def encode_command(images, output, stride, stride_x, stride_y, offset, pattern, seed, raw_size,
                    pix_fmt, codec, value_bits, quality, size_bytes, size_fraction, info_file, header_only,
-                   jobs, scheduler, overwrite, as_json):
+                   check_payload, jobs, scheduler, overwrite, as_json):
     """Sample RIGHT_IMAGE ('-' = stdin) on a sparse grid and write the .sbs sample file.
 
     \b
@@ -231,6 +253,7 @@ def encode_command(images, output, stride, stride_x, stride_y, offset, pattern, 
       sb-encode right.png -o right.sbs --stride 4 --codec lossless
       sb-encode right.png -o right.sbs --size 20000    # densest grid in 20000 bytes
       sb-encode --info right.sbs                       # header as JSON
+      sb-encode --info right.sbs --check               # ... after decoding the payload
       sb-encode 'cam_r/*.png' -o 'out/{stem}.sbs' -j 2 # many files (quoted glob)
 
     With several inputs (files, folders, quoted globs) or a templated -o, an output
@@ -246,10 +269,13 @@ def encode_command(images, output, stride, stride_x, stride_y, offset, pattern, 
     if info_file is not None:
         if images or output is not None:
             raise OptionError("--info takes only the sample file; drop RIGHT_IMAGE and -o")
-        _show_info(info_file, verify=not header_only)
+        if header_only and check_payload:
+            raise OptionError("--header-only skips the payload and --check decodes it: give one of them")
+        common.require_stdout("--info")
+        _show_info(info_file, verify=not header_only, decode=check_payload)
         return
-    if header_only:
-        raise OptionError("--header-only only applies to --info")
+    if header_only or check_payload:
+        raise OptionError(f"{'--header-only' if header_only else '--check'} only applies to --info")
     if not images:
         raise OptionError("missing RIGHT_IMAGE (use '-' for standard input); see --help")
     if output is None:
@@ -258,6 +284,16 @@ def encode_command(images, output, stride, stride_x, stride_y, offset, pattern, 
         raise OptionError("--raw WxH and --pix-fmt must be given together")
     if as_json and output == "-":
         raise OptionError("--json cannot be combined with '-o -' (stdout carries the sample file)")
+    if as_json:
+        common.require_stdout("--json")
+    if size_bytes is not None or size_fraction is not None:
+        # A budget chooses the stride: a stride given as well would be silently replaced.
+        source = click.get_current_context().get_parameter_source
+        given = [f"--{name.replace('_', '-')}" for name in ("stride", "stride_x", "stride_y")
+                 if source(name) is click.core.ParameterSource.COMMANDLINE]
+        if given:
+            raise OptionError(f"{'--size' if size_bytes is not None else '--epsilon'} chooses the grid stride "
+                              f"from the byte budget: drop {' and '.join(given)}, or drop the budget")
     size = None
     if raw_size is not None:
         from stereobudget.io import parse_raw_size
@@ -283,14 +319,23 @@ def encode_command(images, output, stride, stride_x, stride_y, offset, pattern, 
         return
 
     from stereobudget.encoding import encode_file
-    report = encode_file(image, output, pattern=sampling, raw_size=size, pix_fmt=pix_fmt,
-                         overwrite=overwrite, **coding)
-    log.info("%s -> %s: %dx%d %s %s, %s %dx%d, %d samples, epsilon %.2f %%, %d bytes "
-             "(header %d + payload %d, %s, %d bits, %.3f bits per pixel)", report.source, report.output,
+    from stereobudget.io import display_name
+    from stereobudget.errors import StereoBudgetError
+    try:
+        report = encode_file(image, output, pattern=sampling, raw_size=size, pix_fmt=pix_fmt,
+                             overwrite=overwrite, **coding)
+    except StereoBudgetError as exc:
+        if as_json and exc.path != "<stdout>":
+            # The same record a batch gives a failed file; the error line and code follow.
+            common.emit_json({"status": "failed", "input": display_name(image),
+                              "output": "<stdout>" if output == "-" else output, **common.failure_fields(exc)})
+        raise
+    log.info("%s -> %s: %dx%d %s %s, %s %dx%d, %d samples (%.2f %% of the pixels), %d bytes (%.2f %% of the "
+             "raw image; header %d + payload %d, %s, %d bits, %.3f bits per pixel)", report.source, report.output,
              report.width, report.height, report.channel_order, report.dtype, report.pattern,
-             report.stride_x, report.stride_y, report.sample_count, 100 * report.epsilon, report.file_size,
-             report.header_bytes, report.payload_bytes, report.codec, report.value_bits,
-             report.bits_per_pixel)
+             report.stride_x, report.stride_y, report.sample_count, 100 * report.pixel_fraction, report.file_size,
+             100 * report.bytes_fraction, report.header_bytes, report.payload_bytes, report.codec,
+             report.value_bits, report.bits_per_pixel)
     if as_json:
         common.emit_json(report.as_dict())
 

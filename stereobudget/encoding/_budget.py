@@ -34,6 +34,25 @@ def grid(stride: int) -> SamplingPattern:
     return SamplingPattern(kind="grid", stride_x=stride, stride_y=stride)
 
 
+def check_budget(*, size: int | None = None, size_fraction: float | None = None) -> None:
+    """Refuse a byte budget that is not a positive size, or a fraction outside (0, 1] (NaN among them).
+
+    Raises
+    ------
+    OptionError
+        As the ``--size`` / ``--epsilon`` options of ``sb-encode`` would say it.
+    """
+    if size is not None and not (isinstance(size, int) and size >= 1):
+        raise OptionError(f"--size must be a positive number of bytes, got {size!r}")
+    if size_fraction is not None:
+        import numbers
+        real = isinstance(size_fraction, numbers.Real) and not isinstance(size_fraction, bool)
+        fraction = float(size_fraction) if real else float("nan")
+        if not 0.0 < fraction <= 1.0:        # also false for NaN
+            raise OptionError(f"--epsilon must be a fraction of the raw image bytes in (0, 1], "
+                              f"got {size_fraction!r}")
+
+
 class BudgetSearch:
     """One image's search for the densest grid and most faithful coding within a byte budget.
 
@@ -219,4 +238,4 @@ def fit_budget(image, *, budget: int, codec: str | None = None, value_bits: int 
                         channel_order=channel_order).run(hint)
 
 
-__all__ = ["BUDGET_QUALITIES", "BUDGET_DROPPED_BITS", "MAX_BUDGET_STRIDE", "BudgetSearch", "fit_budget"]
+__all__ = ["BUDGET_QUALITIES", "BUDGET_DROPPED_BITS", "MAX_BUDGET_STRIDE", "check_budget", "BudgetSearch", "fit_budget"]

@@ -18,7 +18,7 @@ from ..io._atomic import STDIO, check_output_path, display_name, read_input_byte
 from ..io._samples import (HEADER_SIZE_V1_0, _DTYPE_CODE_BY_NAME, _DTYPE_NAMES, _check_writable, _coded_file,
                            _pack_file)
 from ..sampling._patterns import SamplingPattern, sample_count
-from ._budget import fit_budget
+from ._budget import check_budget, fit_budget
 from ._select import encode_image
 
 log = logging.getLogger("stereobudget")
@@ -26,7 +26,13 @@ log = logging.getLogger("stereobudget")
 
 @dataclass(frozen=True)
 class EncodeReport:
-    """What :func:`encode_file` did (JSON-able through :meth:`as_dict`)."""
+    """What :func:`encode_file` did (JSON-able through :meth:`as_dict`).
+
+    Two fractions describe the file: ``pixel_fraction``, the pixels sampled (samples /
+    pixels, the paper's epsilon; also under its older name ``epsilon``), and
+    ``bytes_fraction``, the file's bytes over the raw image's (W x H x channels x bytes per
+    value), the quantity a ``--epsilon`` / ``size_fraction`` budget bounds.
+    """
 
     source: str
     output: str
@@ -50,6 +56,8 @@ class EncodeReport:
     value_bits: int = 8
     quality: int = 0
     bits_per_pixel: float = 0.0
+    pixel_fraction: float = 0.0
+    bytes_fraction: float = 0.0
 
     def as_dict(self) -> dict:
         return dict(self.__dict__)
@@ -95,6 +103,7 @@ def encode_file(source, output, *, pattern: SamplingPattern, raw_size: tuple[int
         Bad output path (checked before the input is read), unreadable input, or a
         pattern that leaves no sample on this image.
     """
+    check_budget(size=size, size_fraction=size_fraction)
     check_output_path(output, [source], overwrite)
     name = display_name(source)
     log.debug("reading %s", name)
@@ -139,6 +148,7 @@ def encode_frame(frame, *, name: str, output, pattern: SamplingPattern, raw_size
     else:
         image, channel_order = frame
     height, width = image.shape[:2]
+    check_budget(size=size, size_fraction=size_fraction)
     if size_fraction is not None:
         size = int(size_fraction * image.size * image.dtype.itemsize)
     if size is not None:
@@ -210,7 +220,9 @@ def _report(name: str, output, *, width: int, height: int, channels: int, channe
         sample_count=sample_count, epsilon=sample_count / float(height * width),
         header_bytes=HEADER_SIZE_V1_0, payload_bytes=file_size - HEADER_SIZE_V1_0, file_size=file_size,
         codec=codec, value_bits=value_bits or 8 * _DTYPE_CODE_BY_NAME[dtype], quality=quality,
-        bits_per_pixel=8.0 * file_size / float(width * height))
+        bits_per_pixel=8.0 * file_size / float(width * height),
+        pixel_fraction=sample_count / float(height * width),
+        bytes_fraction=file_size / float(width * height * channels * _DTYPE_CODE_BY_NAME[dtype]))
 
 
 __all__ = ["EncodeReport", "encode_file", "encode_frame"]

@@ -643,30 +643,36 @@ def header_dict(fields: dict) -> dict:
     }
 
 
-def probe(source, *, verify_payload: bool = False, name: str | None = None) -> dict:
+def probe(source, *, verify_payload: bool = False, decode_payload: bool = False, name: str | None = None) -> dict:
     """Validate a sample file's header (and optionally payload) without decoding values.
 
     Parameters
     ----------
     source : bytes-like, str or os.PathLike
         The file contents, a path, or ``-`` for standard input.  For a path only the
-        header is read (plus the payload when ``verify_payload``).
+        header is read (plus the payload when ``verify_payload`` or ``decode_payload``).
     verify_payload : bool
-        Also check the payload CRC-32.
+        Also check the payload CRC-32 (the container's checksum of the coded bytes).
+    decode_payload : bool
+        Also decode the payload and check the decoded values exactly as
+        :func:`read_samples` does (a codec this install lacks, a payload that does not
+        decode, values that do not match their checksum are errors).
     name : str, optional
         Name used in messages.
 
     Returns
     -------
     dict
-        Every header field, ``epsilon`` (samples / pixels) and ``file_size``; JSON-able.
-        The size of the file is always checked against the header.
+        Every header field, ``epsilon`` (samples / pixels), ``file_size`` and
+        ``payload_verified``: true only when the payload was decoded (``decode_payload``);
+        JSON-able.  The size of the file is always checked against the header.
 
     Raises
     ------
     SampleFileError
         As :func:`read_samples`.
     """
+    verify_payload = verify_payload or decode_payload
     if isinstance(source, (bytes, bytearray, memoryview)) or str(source) == STDIO:
         if not isinstance(source, (bytes, bytearray, memoryview)):
             name = name or display_name(source)
@@ -674,17 +680,24 @@ def probe(source, *, verify_payload: bool = False, name: str | None = None) -> d
         name = name or "<bytes>"
         view = memoryview(source).cast("B")
         if verify_payload:
-            return header_dict(_validate_file(view, name)[0])
-        return header_dict(_parse_header(view, name))
+            info = header_dict(_validate_file(view, name)[0])
+        else:
+            info = header_dict(_parse_header(view, name))
+        if decode_payload:
+            read_samples(view, source=name)
+        info["payload_verified"] = decode_payload
+        return info
     name = name or str(source)
     path = Path(source)
     if verify_payload:
         data = read_input_bytes(path, error=NotASampleFileError)
-        return header_dict(_validate_file(memoryview(data).cast("B"), name)[0])
+        return probe(data, verify_payload=True, decode_payload=decode_payload, name=name)
     try:
         with open(path, "rb") as handle:
             size = os.fstat(handle.fileno()).st_size
             head = handle.read(MAX_HEADER_LENGTH)
     except OSError as exc:
         raise reading_error(exc, NotASampleFileError, name) from None
-    return header_dict(_parse_header(memoryview(head), name, file_size=size))
+    info = header_dict(_parse_header(memoryview(head), name, file_size=size))
+    info["payload_verified"] = False
+    return info

@@ -19,11 +19,10 @@ from __future__ import annotations
 import contextlib
 import os
 import struct
-import sys
 from typing import BinaryIO, Iterator
 
 from ..errors import ImageReadError, NotASampleFileError, TruncatedFileError
-from ._atomic import display_name, reading_error
+from ._atomic import display_name, reading_error, stdin_or
 
 #: Offsets of the fields that frame a ``.sbs`` file (docs/format.md).
 _HEADER_LENGTH_AT = 10
@@ -40,7 +39,7 @@ def _open_input(source, error: type) -> Iterator[BinaryIO]:
     """A binary reader of ``source`` (a path, or ``-`` for standard input), errors as ``error``."""
     name = display_name(source)
     if str(source) == "-":
-        stdin = sys.stdin.buffer
+        stdin = stdin_or(error)
         if stdin.isatty():
             raise error("refusing to read binary data from a terminal; pipe or redirect a file", path=name)
         yield stdin

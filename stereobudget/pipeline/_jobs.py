@@ -24,7 +24,7 @@ import time
 from dataclasses import dataclass
 from typing import Callable, Iterable
 
-from ..io._atomic import STDIO, display_name, interrupts_deferred
+from ..io._atomic import STDIO, display_name, interrupts_deferred, written_together
 from ..errors import MemoryLimitError, OptionError
 from ..decoding._methods import DEFAULT_METHOD
 from ._outputs import check_job_outputs, prepare_outputs
@@ -285,6 +285,9 @@ def decode_arrays(left, samples, job: DecodeJob, *, left_name: str, samples_name
                                                   method=method, max_memory=job.max_memory)
     except MemoryLimitError as exc:
         raise MemoryLimitError(exc.message, path=left_name) from None
+    except OptionError as exc:
+        # What the sample file does not allow (a stride-1 Bayer mosaic, --method against its pattern).
+        raise OptionError(exc.message, path=exc.path or samples_name) from None
     disparity = result.disparity
     timings.update(result.timings)
 
@@ -305,17 +308,21 @@ def decode_arrays(left, samples, job: DecodeJob, *, left_name: str, samples_name
 
     t = time.perf_counter()
     # The outputs and the record of what made them are written together: a batch
-    # interrupted in between would otherwise redo a finished file.
+    # interrupted in between would otherwise redo a finished file.  The outputs are all
+    # or none: each goes to its temporary file and all are moved into place at the end,
+    # so one that cannot be written (a full disk) leaves none of them.
     with interrupts_deferred():
-        if job.disparity is not None:
-            dispio.write_disparity(job.disparity, disparity, overwrite=overwrite,
-                                   stream_format=(job.disparity_format or "pfm") if job.disparity == STDIO else None)
-        if job.preview is not None:
-            dispio.write_preview(job.preview, disparity, min_disp=min_disp, max_disp=max_disp,
-                                 overwrite=overwrite)
-        if right_image is not None:
-            imageio.write_image(job.right, right_image,
-                                channel_order="rgb" if right_image.ndim == 3 else "gray", overwrite=overwrite)
+        with written_together():
+            if job.disparity is not None:
+                dispio.write_disparity(job.disparity, disparity, overwrite=overwrite,
+                                       stream_format=((job.disparity_format or "pfm") if job.disparity == STDIO
+                                                      else None))
+            if job.preview is not None:
+                dispio.write_preview(job.preview, disparity, min_disp=min_disp, max_disp=max_disp,
+                                     overwrite=overwrite)
+            if right_image is not None:
+                imageio.write_image(job.right, right_image,
+                                    channel_order="rgb" if right_image.ndim == 3 else "gray", overwrite=overwrite)
         if after_write is not None:
             after_write(outputs.values())
     timings["write"] = time.perf_counter() - t
@@ -327,6 +334,7 @@ def decode_arrays(left, samples, job: DecodeJob, *, left_name: str, samples_name
         "width": int(left.shape[1]), "height": int(left.shape[0]),
         "channels": 1 if left.ndim == 2 else int(left.shape[2]), "dtype": str(left.dtype),
         "sample_count": int(samples.values.shape[0]), "epsilon": samples.epsilon,
+        "pixel_fraction": samples.epsilon,
         "pattern": samples.pattern.kind, "stride_x": samples.pattern.stride_x,
         "stride_y": samples.pattern.stride_y, "codec": samples.codec,
         "value_bits": samples.value_bits or 8 * samples.values.dtype.itemsize,

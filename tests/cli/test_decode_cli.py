@@ -218,3 +218,28 @@ def test_option_errors(pair, tmp_path, monkeypatch, args, fragment):
 def test_version():
     result = invoke("--version")
     assert result.exit_code == 0 and __version__ in result.stdout
+
+
+def test_a_single_failed_pair_writes_its_failed_json_line(pair, tmp_path):
+    left_path, _, _, _ = pair
+    missing = tmp_path / "missing.sbs"
+    result = invoke(left_path, missing, "--max-disp", MAX_DISP, "--disparity", tmp_path / "d.pfm", "--json")
+    assert_clean_error(result, NotASampleFileError, str(missing), "no such file")
+    line = json.loads(result.stdout)
+    assert line == {"status": "failed", "left": str(left_path), "samples": str(missing),
+                    "outputs": {"disparity": str(tmp_path / "d.pfm")}, "error": f"{missing}: no such file",
+                    "error_class": "NotASampleFileError", "exit_code": NotASampleFileError.exit_code}
+
+
+def test_a_stride_1_bayer_file_is_refused_naming_it(tmp_path):
+    from stereobudget.encoding import encode_file
+
+    gray = np.random.default_rng(1).integers(0, 256, (32, 48), dtype=np.uint8)
+    raw = tmp_path / "bayer.raw"
+    raw.write_bytes(gray.tobytes())
+    samples = tmp_path / "bayer1.sbs"
+    encode_file(raw, samples, pattern=SamplingPattern("grid", 1, 1), raw_size=(48, 32), pix_fmt="bayer_rggb8")
+    left = write_png(tmp_path / "left.png", np.dstack([gray] * 3))
+    result = invoke(left, samples, "--max-disp", 4, "--disparity", tmp_path / "d.pfm")
+    assert_clean_error(result, OptionError, f"{samples}: a bayer_rggb mosaic at stride 1")
+    assert not (tmp_path / "d.pfm").exists()

@@ -118,7 +118,7 @@ def test_verbose_logs_epsilon_and_size(png, tmp_path):
     proc = run(png[0], "-o", tmp_path / "v.sbs", "-v")
     assert proc.returncode == 0
     err = proc.stderr.decode()
-    assert "epsilon 4.91 %" in err and "bytes (header 80 + payload" in err
+    assert "(4.91 % of the pixels)" in err and "header 80 + payload" in err
     quiet = run(png[0], "-o", tmp_path / "q.sbs")
     assert quiet.returncode == 0 and quiet.stderr == b"" and quiet.stdout == b""
 
@@ -315,6 +315,9 @@ def test_info_on_stdin(good_sbs):
     (["--raw", "10x10"], "together"),
     (["--raw", "10by10", "--pix-fmt", "gray8"], "WIDTHxHEIGHT"),
     (["--header-only"], "--info"),
+    (["--check"], "--info"),
+    (["--stride", "7", "--epsilon", "0.04"], "drop --stride"),
+    (["--stride-x", "3", "--size", "900"], "drop --stride-x"),
 ])
 def test_inconsistent_options_exit_2(png, tmp_path, args, fragment):
     result = invoke(png[0], "-o", tmp_path / "o.sbs", *args)
@@ -470,6 +473,7 @@ def test_size_never_exceeds_its_budget(tmp_path, budget):
     (["--size", "50"], "fits in 50 bytes"),
     (["--size", "1k"], "--size must be a positive number of bytes"),
     (["--size", "900", "--epsilon", "0.1"], "not both"),
+    (["--epsilon", "inf"], "0<x<=1"),
     (["--quality", "50"], "--quality applies to --codec webp or jxl"),
     (["--pattern", "fps", "--codec", "deflate"], "needs a lattice pattern"),
     (["--pattern", "jitter", "--size", "900"], "need --pattern grid"),
@@ -490,3 +494,59 @@ def test_a_raw_frame_can_be_coded_too(tmp_path):
     assert proc.returncode == 0, proc.stderr.decode()
     ss = load_samples(out)
     assert ss.value_bits == 4 and np.abs(ss.grid_values().astype(int) - frame[::5, ::5]).max() <= 8
+
+
+def test_the_line_names_pixels_and_bytes_apart(png, tmp_path):
+    proc = run(png[0], "-o", tmp_path / "b.sbs", "--epsilon", "0.5", "--json", "-v")
+    assert proc.returncode == 0, proc.stderr
+    report = json.loads(proc.stdout)
+    assert report["bytes_fraction"] <= 0.5 and report["pixel_fraction"] == report["epsilon"]
+    raw_bytes = report["width"] * report["height"] * 3
+    assert report["bytes_fraction"] == pytest.approx(report["file_size"] / raw_bytes)
+    line = proc.stderr.decode()
+    assert f"({100 * report['pixel_fraction']:.2f} % of the pixels)" in line
+    assert f"({100 * report['bytes_fraction']:.2f} % of the raw image;" in line
+
+
+def _deflate_that_does_not_inflate(tmp_path) -> Path:
+    """A deflate file whose payload is valid zlib of the wrong length, container CRCs all correct."""
+    from stereobudget.io import write_samples
+    from stereobudget.encoding import encode_image
+    from stereobudget.sampling import SamplingPattern
+
+    smooth = np.repeat(np.arange(40, dtype=np.uint8)[None, :, None], 3, axis=2).repeat(40, axis=0)
+    good = write_samples(encode_image(smooth, pattern=SamplingPattern("grid", 2, 2)), codec="deflate")
+    assert read_samples(good).codec == "deflate"
+    payload = zlib.compress(b"not the lattice")
+    head = good[:64] + struct.pack("<QI", len(payload), zlib.crc32(payload))
+    path = tmp_path / "bad_payload.sbs"
+    path.write_bytes(head + struct.pack("<I", zlib.crc32(head)) + payload)
+    return path
+
+
+def test_info_check_decodes_the_payload(tmp_path, good_sbs):
+    bad = _deflate_that_does_not_inflate(tmp_path)
+    unchecked = run("--info", bad)
+    assert unchecked.returncode == 0 and json.loads(unchecked.stdout)["payload_verified"] is False
+    assert_clean_error(run("--info", bad, "--check"), CorruptPayloadError.exit_code, str(bad), "inflates")
+    good = tmp_path / "good_again.sbs"
+    good.write_bytes(good_sbs)
+    checked = run("--info", good, "--check")
+    assert checked.returncode == 0 and json.loads(checked.stdout)["payload_verified"] is True
+
+
+def test_a_single_failed_file_writes_its_failed_json_line(tmp_path):
+    proc = run(tmp_path / "missing.png", "-o", tmp_path / "o.sbs", "--json")
+    assert_clean_error(proc, ImageReadError.exit_code, "missing.png")
+    line = json.loads(proc.stdout)
+    assert line["status"] == "failed" and line["exit_code"] == ImageReadError.exit_code
+    assert line["error_class"] == "ImageReadError" and line["output"] == str(tmp_path / "o.sbs")
+
+
+def test_misleading_folder_messages(png, tmp_path):
+    (tmp_path / "f").write_bytes(b"")
+    assert_clean_error(run(png[0], "-o", tmp_path / "f" / "o.sbs"), OutputError.exit_code,
+                       f"{str(tmp_path / 'f')!r} is a file, not a directory")
+    if os.path.isdir("/proc"):
+        assert_clean_error(run(png[0], "-o", "/proc/o.sbs"), OutputError.exit_code,
+                           "cannot create a file in '/proc': this filesystem does not allow it")

@@ -180,3 +180,94 @@ def test_interrupts_deferred_delivers_sigint_and_sigterm_after_the_block():
             pass
     finally:
         signal.signal(signal.SIGTERM, before_term)
+
+
+def test_written_together_publishes_all_or_none(tmp_path):
+    from stereobudget.io import written_together
+
+    a, b = tmp_path / "a.bin", tmp_path / "b.bin"
+    with pytest.raises(OutputError, match="output exists"):
+        with written_together():
+            write_output_bytes(a, b"first")
+            assert not a.exists()                  # held back until the block ends
+            write_output_bytes(tmp_path / "taken.bin", b"x")   # published? no: staged too
+            (tmp_path / "c.bin").write_bytes(b"someone else's")
+            write_output_bytes(tmp_path / "c.bin", b"second")  # refused: c exists
+    assert sorted(os.listdir(tmp_path)) == ["c.bin"]
+    assert (tmp_path / "c.bin").read_bytes() == b"someone else's"
+    with written_together():
+        write_output_bytes(a, b"first")
+        write_output_bytes(b, b"second")
+    assert a.read_bytes() == b"first" and b.read_bytes() == b"second"
+    assert sorted(os.listdir(tmp_path)) == ["a.bin", "b.bin", "c.bin"]
+
+
+def test_a_move_that_fails_at_the_end_takes_back_the_new_outputs(tmp_path):
+    from stereobudget.io import written_together
+
+    a, b = tmp_path / "a.bin", tmp_path / "b.bin"
+    with pytest.raises(OutputError, match="output exists"):
+        with written_together():
+            write_output_bytes(a, b"first")
+            write_output_bytes(b, b"second")
+            b.write_bytes(b"appeared meanwhile")      # after the check, before the move
+    assert sorted(os.listdir(tmp_path)) == ["b.bin"] and b.read_bytes() == b"appeared meanwhile"
+
+
+def test_a_write_that_fails_is_an_output_error_and_leaves_nothing(tmp_path, monkeypatch):
+    import errno
+
+    def full(fd):
+        raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
+
+    monkeypatch.setattr(os, "fsync", full)
+    with pytest.raises(OutputError, match="out.bin: cannot write: No space left on device"):
+        with atomic_write(tmp_path / "out.bin") as handle:
+            handle.write(b"data")
+    assert os.listdir(tmp_path) == []
+
+
+def test_output_paths_the_system_refuses(tmp_path):
+    (tmp_path / "f").write_bytes(b"")
+    with pytest.raises(OutputError, match="'.*f' is a file, not a directory"):
+        check_output_path(tmp_path / "f" / "g" / "d.pfm", [], False)
+    with pytest.raises(OutputError, match=r"file name too long \(304 bytes"):
+        check_output_path(tmp_path / ("x" * 300 + ".pfm"), [], False)
+    with pytest.raises(OutputError, match="file name too long"):
+        write_output_bytes(tmp_path / ("x" * 300 + ".pfm"), b"")
+    long_ok = tmp_path / ("y" * 250 + ".pfm")                 # 254 bytes: its temporary name is shortened
+    check_output_path(long_ok, [], False)
+    write_output_bytes(long_ok, b"fits")
+    assert long_ok.read_bytes() == b"fits"
+    assert sorted(os.listdir(tmp_path)) == sorted(["f", long_ok.name])
+    if os.path.isdir("/proc"):
+        with pytest.raises(OutputError, match="this filesystem does not allow it"):
+            check_output_path("/proc/d.pfm", [], False)
+    if os.path.exists("/dev/null"):          # --overwrite must not replace a device by a file
+        with pytest.raises(OutputError, match="not a regular file"):
+            check_output_path("/dev/null", [], True)
+
+
+def test_closed_standard_streams_are_named(monkeypatch):
+    from stereobudget.errors import NotASampleFileError
+    from stereobudget.io import standard_stream
+
+    monkeypatch.setattr(sys, "stdout", None)
+    monkeypatch.setattr(sys, "stdin", None)
+    with pytest.raises(OutputError, match="<stdout>: standard output is closed"):
+        write_output_bytes("-", b"x")
+    with pytest.raises(OutputError, match="<stdout>: standard output is closed"):
+        check_output_path("-", [], False)
+    with pytest.raises(ImageReadError, match="<stdin>: standard input is closed"):
+        read_input_bytes("-", error=ImageReadError)
+    with pytest.raises(NotASampleFileError, match="standard input is closed"):
+        standard_stream("stdin")
+
+
+@pytest.mark.parametrize("fraction", [float("nan"), float("inf"), 0.0, -0.1, 1.5, "0.1"])
+def test_budget_fractions_outside_0_1_are_option_errors(fraction):
+    from stereobudget.errors import OptionError
+    from stereobudget.encoding import check_budget
+
+    with pytest.raises(OptionError, match="--epsilon"):
+        check_budget(size_fraction=fraction)

@@ -384,7 +384,8 @@ def test_raw_grid_path_writes_the_bytes_of_the_numpy_path(case):
         "sample_count": ss.values.shape[0], "epsilon": ss.epsilon, "header_bytes": HEADER_SIZE_V1_0,
         "payload_bytes": len(expected) - HEADER_SIZE_V1_0, "file_size": len(expected),
         "codec": "raw", "value_bits": 8 * ss.dtype.itemsize, "quality": 0,
-        "bits_per_pixel": 8.0 * len(expected) / (size[0] * size[1])}
+        "bits_per_pixel": 8.0 * len(expected) / (size[0] * size[1]), "pixel_fraction": ss.epsilon,
+        "bytes_fraction": len(expected) / (size[0] * size[1] * ss.channels * ss.dtype.itemsize)}
 
 
 @pytest.mark.parametrize("pix_fmt", sorted(_RAW_FORMATS))
