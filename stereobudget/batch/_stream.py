@@ -118,7 +118,7 @@ def encode_stream(sources: Iterable[str], output: str, *, pattern, raw_size: tup
         # Before the first frame is read: standard output is usable, the first file can be made.
         first = _frame_output(output, source=sources[0] if raw_size is None and sources else first_source,
                               index=0, option="-o")
-        _prepare_outputs([first], sources, overwrite=overwrite, make_dirs=True, replace_existing=False)
+        prepare_outputs([first], sources, overwrite=overwrite, make_dirs=True, replace_existing=False)
         for index, target, data, report in frames():
             if per_frame:
                 prepare_outputs([target], sources, overwrite=overwrite, make_dirs=True, replace_existing=False)
@@ -220,7 +220,7 @@ def decode_stream(left: str, samples: str, *, disparity: str | None = None, prev
     first = {kind: _frame_output(value, source=lefts.path(0), index=0, option=f"--{kind}")
              for kind, value in templates.items()}
     check_job_outputs(DecodeJob(left=lefts.path(0), samples=stream_name, **first))
-    _prepare_outputs([path for path in first.values() if path is not None], [lefts.path(0), *inputs],
+    prepare_outputs([path for path in first.values() if path is not None], [lefts.path(0), *inputs],
                      overwrite=overwrite, make_dirs=True, replace_existing=False)
     for index, frame in enumerate(sample_frames(samples)):
         start = time.perf_counter()
