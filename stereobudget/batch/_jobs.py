@@ -23,13 +23,36 @@ import time
 from dataclasses import dataclass
 
 from ..io._atomic import STDIO, display_name, interrupts_deferred
-from ..errors import MemoryLimitError, OptionError, StereoBudgetError
+from ..errors import MemoryLimitError, OptionError, OutputError, StereoBudgetError
 from ..decoding._methods import DEFAULT_METHOD
 from ._outputs import _prepare_outputs, check_job_outputs
 from ._recipes import make_recipe, recipe_difference, write_recipes
 from ._worker import _in_job, _limit_numba_threads
 
 log = logging.getLogger("stereobudget")
+
+
+#: How long a job whose output appeared while it ran waits for that output's recipe: the
+#: run that wrote it records the recipe right after the output (milliseconds later).
+RECIPE_WAIT = 2.0
+
+
+def _finished_elsewhere(exc: BaseException, outputs, recipe: dict | None) -> bool:
+    """Whether ``exc`` (an output that exists) is another run having made the same outputs.
+
+    Two identical batches into one folder race for each file: the loser finds the
+    winner's output at its final rename.  When that output, and its partners, now carry
+    the recipe this job would have written, the job is up to date, not failed.
+    """
+    if recipe is None or not isinstance(exc, OutputError):
+        return False
+    deadline = time.monotonic() + RECIPE_WAIT
+    while True:
+        if recipe_difference(outputs, recipe) is None:
+            return True
+        if time.monotonic() >= deadline:
+            return False
+        time.sleep(0.05)
 
 
 def _failure(exc: BaseException) -> dict:
@@ -90,6 +113,7 @@ def encode_job(job: EncodeJob) -> dict:
     result = {"status": "ok", "input": display_name(job.source),
               "output": "<stdout>" if job.output == STDIO else job.output}
     _in_job(True)
+    recipe = None
     try:
         recipe = _encode_recipe(job) if job.batch else None
         if recipe is not None:
@@ -111,6 +135,10 @@ def encode_job(job: EncodeJob) -> dict:
         result.update(report.as_dict())
         result["input"] = report.source
     except (StereoBudgetError, MemoryError) as exc:
+        if _finished_elsewhere(exc, [job.output], recipe):
+            result.pop("redone", None)
+            result.update(status="skipped", reason="up to date")
+            return result
         result.update(status="failed", **_failure(exc))
     except Exception as exc:  # noqa: BLE001 -- one bad file must not stop a batch
         log.debug("unexpected error on %s", job.label, exc_info=True)
@@ -407,7 +435,13 @@ def decode_job(job: DecodeJob) -> dict:
                         "timings": {"total": round(time.perf_counter() - start, 4)}}
             if any(os.path.exists(o) for o in job.outputs.values()):
                 redone = "--overwrite" if reason is None else reason
-        summary = decode_file(job, recipe=recipe)
+        try:
+            summary = decode_file(job, recipe=recipe)
+        except OutputError as exc:
+            if _finished_elsewhere(exc, job.outputs.values(), recipe):
+                return {"status": "skipped", **base, "reason": "up to date",
+                        "timings": {"total": round(time.perf_counter() - start, 4)}}
+            raise
         if redone is not None:
             summary["redone"] = redone
         return summary
