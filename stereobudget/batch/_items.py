@@ -23,13 +23,35 @@ import os
 import time
 
 from ..io._atomic import STDIO, display_name
-from ..errors import StereoBudgetError
+from ..errors import OutputError, StereoBudgetError
 from ..decoding._methods import DEFAULT_METHOD
 from ..pipeline._jobs import DecodeJob, EncodeJob, decode_file, encode_one
 from ._recipes import make_recipe, recipe_difference, write_recipes
 from ._worker import _in_job, _limit_numba_threads
 
 log = logging.getLogger("stereobudget")
+
+#: How long a job whose output appeared while it ran waits for that output's recipe: the
+#: run that wrote it records the recipe right after the output (milliseconds later).
+RECIPE_WAIT = 2.0
+
+
+def _finished_elsewhere(exc: BaseException, outputs, recipe: dict | None) -> bool:
+    """Whether ``exc`` (an output that exists) is another run having made the same outputs.
+
+    Two identical batches into one folder race for each file: the loser finds the
+    winner's output at its final rename.  When that output, and its partners, now carry
+    the recipe this job would have written, the job is up to date, not failed.
+    """
+    if recipe is None or not isinstance(exc, OutputError):
+        return False
+    deadline = time.monotonic() + RECIPE_WAIT
+    while True:
+        if recipe_difference(outputs, recipe) is None:
+            return True
+        if time.monotonic() >= deadline:
+            return False
+        time.sleep(0.05)
 
 
 def _failure(exc: BaseException) -> dict:
@@ -63,6 +85,7 @@ def encode_job(job: EncodeJob) -> dict:
     result = {"status": "ok", "input": display_name(job.source),
               "output": "<stdout>" if job.output == STDIO else job.output}
     _in_job(True)
+    recipe = None
     try:
         recipe = _encode_recipe(job) if job.batch else None
         if recipe is not None:
@@ -74,6 +97,10 @@ def encode_job(job: EncodeJob) -> dict:
                 result["redone"] = "--overwrite" if reason is None else reason
         result.update(encode_one(job, after_write=_recorder(recipe)))
     except (StereoBudgetError, MemoryError) as exc:
+        if _finished_elsewhere(exc, [job.output], recipe):
+            result.pop("redone", None)
+            result.update(status="skipped", reason="up to date")
+            return result
         result.update(status="failed", **_failure(exc))
     except Exception as exc:  # noqa: BLE001 -- one bad file must not stop a batch
         log.debug("unexpected error on %s", job.label, exc_info=True)
@@ -126,7 +153,13 @@ def decode_job(job: DecodeJob) -> dict:
             if any(os.path.exists(o) for o in job.outputs.values()):
                 redone = "--overwrite" if reason is None else reason
         _limit_numba_threads(job.threads)
-        summary = decode_file(job, after_write=_recorder(recipe))
+        try:
+            summary = decode_file(job, after_write=_recorder(recipe))
+        except OutputError as exc:
+            if _finished_elsewhere(exc, job.outputs.values(), recipe):
+                return {"status": "skipped", **base, "reason": "up to date",
+                        "timings": {"total": round(time.perf_counter() - start, 4)}}
+            raise
         if redone is not None:
             summary["redone"] = redone
         return summary

@@ -43,7 +43,7 @@ def _run_local_pool(jobs: list, fn: Callable, workers: int, threads: int | None)
     # fresh interpreter is safe.  The CLI never decodes in the parent, so it forks.
     context = multiprocessing.get_context("forkserver" if "numba" in sys.modules else None)
     executor = ProcessPoolExecutor(max_workers=workers, mp_context=context,
-                                   initializer=_worker_init, initargs=(threads,))
+                                   initializer=_worker_init, initargs=(threads, os.getpid()))
     pending = {}
     clean_exit = False
     try:

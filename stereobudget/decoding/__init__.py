@@ -12,6 +12,8 @@ __getattr__, __dir__, __all__ = attach(__name__, {
     '_tiling': ['band_samples', 'DEFAULT_TILE_OVERLAP', 'MIN_TILE_ROWS', 'auto_tile_rows', 'decode_tiled'],
     '_memory': ['estimate_decode_memory', 'check_decode_memory', 'decode_memory'],
     '_methods': ['MethodRecord', 'METHOD_RECORDS', 'METHODS', 'DEFAULT_METHOD', 'TILED_METHODS'],
-    '_disprange': ['AUTO', 'RangeEstimate', 'estimate_disparity_range', 'is_auto', 'resolve_range'],
-    '_checks': ['DecodeWarning', 'limit_shares', 'psnr_at_samples', 'setup_warnings', 'result_warnings'],
+    '_disprange': ['AUTO', 'RangeEstimate', 'estimate_disparity_range', 'is_auto', 'resolve_range', 'top_share',
+                   'widened_max'],
+    '_checks': ['DecodeWarning', 'limit_shares', 'psnr_at_samples', 'psnr_at_zero_disparity', 'setup_warnings',
+                'result_warnings'],
 })

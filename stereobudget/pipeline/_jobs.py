@@ -288,6 +288,24 @@ def decode_arrays(left, samples, job: DecodeJob, *, left_name: str, samples_name
     except OptionError as exc:
         # What the sample file does not allow (a stride-1 Bayer mosaic, --method against its pattern).
         raise OptionError(exc.message, path=exc.path or samples_name) from None
+    widened_from = None
+    if auto:
+        # An estimate built from few confident samples on the nearest surfaces falls
+        # short of them: their pixels then pile up at the top.  Decode once more, wider.
+        wider = disprange.widened_max(result.disparity, min_disp=min_disp, max_disp=max_disp,
+                                      width=int(left.shape[1]))
+        if wider is not None:
+            log.info("%s: %.1f %% of the pixels at the top of the estimated range %d..%d: decoding again "
+                     "over %d..%d", left_name, 100 * disprange.top_share(result.disparity, max_disp=max_disp),
+                     min_disp, max_disp, min_disp, wider)
+            timings.update({f"{k}_first_range": v for k, v in result.timings.items()})
+            try:
+                result = decoders.shared_decoder().decode(left, samples, max_disp=wider, min_disp=min_disp,
+                                                          method=method, max_memory=job.max_memory)
+                widened_from, max_disp = max_disp, wider
+            except MemoryLimitError:
+                log.info("%s: the wider range does not fit the memory limit; keeping %d..%d", left_name,
+                         min_disp, max_disp)
     disparity = result.disparity
     timings.update(result.timings)
 
@@ -303,7 +321,10 @@ def decode_arrays(left, samples, job: DecodeJob, *, left_name: str, samples_name
     t = time.perf_counter()
     psnr = checks.psnr_at_samples(left, disparity, samples)
     warnings = checks.setup_warnings(estimate) + checks.result_warnings(
-        disparity, min_disp=min_disp, max_disp=max_disp, psnr=psnr, auto_range=auto)
+        disparity, min_disp=min_disp, max_disp=max_disp, psnr=psnr, auto_range=auto,
+        # A flat pair matches itself anywhere: no_texture says it, not left_is_samples.
+        zero_psnr=(checks.psnr_at_zero_disparity(left, samples)
+                   if estimate.textured_fraction >= checks.MIN_TEXTURED_SHARE else None))
     timings["checks"] = time.perf_counter() - t
 
     t = time.perf_counter()
@@ -340,6 +361,7 @@ def decode_arrays(left, samples, job: DecodeJob, *, left_name: str, samples_name
         "value_bits": samples.value_bits or 8 * samples.values.dtype.itemsize,
         "method": result.method, "min_disp": int(min_disp), "max_disp": int(max_disp),
         "range_source": "estimated" if auto else "given", "range_estimate": estimate.summary(),
+        "range_widened_from": widened_from,
         "psnr_at_samples": psnr if math.isfinite(psnr) else None,
         "warnings": [w.as_dict() for w in warnings],
         "disparity_range": ([float(disparity[valid].min()), float(disparity[valid].max())]

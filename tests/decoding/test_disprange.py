@@ -8,7 +8,8 @@ import numpy as np
 import pytest
 
 from stereobudget.decoding import (estimate_disparity_range, is_auto, limit_shares, psnr_at_samples,
-                                   resolve_range, result_warnings, setup_warnings)
+                                   psnr_at_zero_disparity, resolve_range, result_warnings, setup_warnings,
+                                   top_share, widened_max)
 from stereobudget.encoding import encode_image
 from stereobudget.sampling import SamplingPattern
 from stereobudget.scenes import make_scene
@@ -42,17 +43,23 @@ def test_swapped_pair_gives_negative_matches_and_a_warning(planes):
     assert [w.code for w in setup_warnings(estimate)] == ["swapped"]
 
 
-@pytest.mark.parametrize("rows", [1, -2])
+@pytest.mark.parametrize("rows", [3, -5])
 def test_vertical_offset_is_found_and_warned(planes, rows):
     # The right image moved down by `rows`: its row y shows what I1 shows at y - rows.
     moved = np.roll(planes.right, rows, axis=0)
     estimate = estimate_disparity_range(planes.left, encode_image(moved, pattern=GRID))
-    assert estimate.vertical_offset == -rows
+    assert abs(estimate.vertical_offset + rows) <= 1, estimate.vertical_scores
     warnings = setup_warnings(estimate)
     assert [w.code for w in warnings] == ["not_rectified"]
-    assert f"{abs(rows)} row(s)" in warnings[0].message
+    assert f"{abs(estimate.vertical_offset)} row(s)" in warnings[0].message
     # The range is measured at the offset found, so it still holds the truth.
     assert estimate.max_disp >= planes.disparity.max()
+
+
+def test_one_row_is_found_but_not_warned(planes):
+    estimate = estimate_disparity_range(planes.left, encode_image(np.roll(planes.right, 1, axis=0), pattern=GRID))
+    assert estimate.vertical_offset == -1
+    assert setup_warnings(estimate) == []
 
 
 def test_rectified_pair_gives_no_setup_warning(planes):
@@ -65,7 +72,43 @@ def test_unrelated_images_fall_back_to_a_wide_range():
     noise = rng.integers(0, 4, size=flat.shape, dtype=np.uint8)
     estimate = estimate_disparity_range(flat, encode_image(flat + noise, pattern=GRID))
     assert estimate.fallback and (estimate.min_disp, estimate.max_disp) == (0, 32)
-    assert setup_warnings(estimate) == []
+    # Noise of 0-3 gray levels is no texture: nothing to match, and said so.
+    assert estimate.textured_fraction < 0.05
+    assert [w.code for w in setup_warnings(estimate)] == ["no_texture"]
+
+
+def test_textured_pair_has_texture_and_a_constant_one_warns(planes):
+    assert estimate_disparity_range(planes.left, encode_image(planes.right, pattern=GRID)).textured_fraction > 0.5
+    flat = np.full((96, 128, 3), 77, np.uint8)
+    estimate = estimate_disparity_range(flat, encode_image(flat, pattern=GRID))
+    assert estimate.textured_fraction == 0.0
+    warnings = setup_warnings(estimate)
+    assert [w.code for w in warnings] == ["no_texture"] and "no texture to match" in warnings[0].message
+
+
+def test_left_image_that_is_the_sampled_one_is_told(planes):
+    samples = encode_image(planes.right, pattern=GRID)
+    assert psnr_at_zero_disparity(planes.right, samples) == math.inf
+    assert psnr_at_zero_disparity(planes.left, samples) < 24.0
+    zeros = np.zeros_like(planes.disparity)
+    codes = [w.code for w in result_warnings(zeros, min_disp=0, max_disp=8, psnr=math.inf, zero_psnr=math.inf)]
+    assert codes == ["left_is_samples"]
+    # A real pair, decoded right: no such warning.
+    assert result_warnings(planes.disparity, min_disp=0, max_disp=40, psnr=30.0,
+                           zero_psnr=psnr_at_zero_disparity(planes.left, samples)) == []
+
+
+def test_crowded_top_of_an_estimated_range_is_widened(planes):
+    top = float(planes.disparity.max())
+    cut = int(top * 0.6)
+    clipped = np.minimum(planes.disparity, cut).astype(np.float32)
+    assert top_share(clipped, max_disp=cut) > 0.005
+    wider = widened_max(clipped, min_disp=0, max_disp=cut, width=planes.left.shape[1])
+    assert wider is not None and wider >= top
+    assert widened_max(planes.disparity, min_disp=0, max_disp=int(top) + 8, width=planes.left.shape[1]) is None
+    # Still crowded after widening: the estimated range warns (a given one only at 5 %).
+    codes = [w.code for w in result_warnings(clipped, min_disp=0, max_disp=cut, psnr=None, auto_range=True)]
+    assert codes == ["range_limit"]
 
 
 def test_resolve_range_rules(planes):
