@@ -333,7 +333,7 @@ def memory_benchmark(data_dir: Path, *, repeats: int) -> dict:
     """
     import numba
     from stereobudget.io import _images as imageio
-    from stereobudget.aggregate import _tree as tree_module
+    from stereobudget import aggregate as tree_module
 
     left, _ = imageio.read_image(str(data_dir / "teddy" / "left.png"))
     tree = tree_module.build_tree(left)

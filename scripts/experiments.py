@@ -82,8 +82,7 @@ def lower_bound_disparity(left: np.ndarray, right: np.ndarray, *, fraction: floa
     """
     import cv2
 
-    from stereobudget.aggregate import _tree
-    from stereobudget.aggregate import median_filter_disparity
+    from stereobudget.aggregate import aggregate_winners, build_tree, median_filter_disparity
     if not 0 < fraction <= 1:
         raise OptionError(f"fraction must be in (0, 1], got {fraction}")
     params = _params(params)
@@ -97,8 +96,8 @@ def lower_bound_disparity(left: np.ndarray, right: np.ndarray, *, fraction: floa
     if low_size != (w, h):
         low = _resize_volume(cost, low_size, cv2.INTER_AREA)           # float32 (h', w', D)
         cost = _resize_volume(low, (w, h), cv2.INTER_LINEAR)
-    tree = _tree.build_tree(left_f, sigma=params.tree_sigma, median_size=params.tree_median)
-    disp = _tree.aggregate_winners(cost, tree, min_disp=int(min_disp), out=cost)
+    tree = build_tree(left_f, sigma=params.tree_sigma, median_size=params.tree_median)
+    disp = aggregate_winners(cost, tree, min_disp=int(min_disp), out=cost)
     return median_filter_disparity(disp, params.median_size)
 
 

@@ -3,7 +3,8 @@
 from .._lazy import attach
 
 __getattr__, __dir__, __all__ = attach(__name__, {
-    '_tree': ['MinimumSpanningTree', 'TreeLayout', 'build_tree', 'aggregate', 'aggregate_winners', 'tree_layout', 'build_trees', 'aggregate_rows_winners', 'aggregate_two_rows_winners', 'distance_rows_winners'],
+    '_mst': ['MinimumSpanningTree', 'TreeLayout', 'build_tree', 'build_trees', 'tree_layout'],
+    '_tree': ['aggregate', 'aggregate_winners', 'aggregate_rows_winners', 'aggregate_two_rows_winners', 'distance_rows_winners'],
     '_winner': ['subpixel_winner', 'refined_winner', 'winner_take_all'],
     '_refine': ['right_disparity_from_left', 'left_right_stable', 'nonlocal_refinement', 'left_right_refined_rows', 'pair_trees', 'full_pair_disparity', 'median_filter_disparity', 'fill_from_row'],
     '_pair_volumes': ['pair_cost_rows'],

@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ._tree import MinimumSpanningTree
+from ._mst import MinimumSpanningTree
 
 
 def aggregate_reference(cost: np.ndarray, tree: MinimumSpanningTree) -> np.ndarray:

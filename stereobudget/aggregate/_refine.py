@@ -19,7 +19,7 @@ import numpy as np
 from numba import njit, prange
 
 from .._kernels import _scratch as scratch
-from . import _tree
+from . import _mst, _tree
 from ._winner import subpixel_winner
 
 
@@ -128,7 +128,7 @@ def nonlocal_refinement(disp: np.ndarray, stable: np.ndarray, tree, *, min_disp:
     -------
     ndarray, float32 (H, W)
     """
-    layout = _tree.tree_layout(tree)
+    layout = _mst.tree_layout(tree)
     h, w = disp.shape
     rows = np.empty((h * w, int(num_disp)), np.float32) if out is None else out.reshape(h * w, -1)
     # Yang's cost |d - D(q)| of the stable pixels (0 elsewhere) is computed by the walk
@@ -202,9 +202,9 @@ def pair_trees(tree_guide, right_guide, *, params):
         Their row layouts; ``right_layout`` is None for the diagonal check.
     """
     guides = [tree_guide, right_guide] if params.right_check == "tree" else [tree_guide]
-    trees = _tree.build_trees(guides, sigma=params.tree_sigma, median_size=params.tree_median)
-    right_layout = _tree.tree_layout(trees[1]) if len(trees) > 1 else None
-    return trees[0], _tree.tree_layout(trees[0]), right_layout
+    trees = _mst.build_trees(guides, sigma=params.tree_sigma, median_size=params.tree_median)
+    right_layout = _mst.tree_layout(trees[1]) if len(trees) > 1 else None
+    return trees[0], _mst.tree_layout(trees[0]), right_layout
 
 
 def full_pair_disparity(left_f, right_f, *, tree_guide, min_disp, num_disp, params, timer):

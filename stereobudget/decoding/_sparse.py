@@ -4,7 +4,7 @@ sub-pixel refinement -> 3x3 median.  The fill's arguments are shared with Hybrid
 
 from __future__ import annotations
 
-from ..aggregate import _tree as _tree
+from ..aggregate import _mst, _tree
 from ..aggregate._refine import median_filter_disparity
 from ..cost._cost import sample_row_steps, to_gray
 from ..cost._sparse import SparseCostTerms
@@ -65,11 +65,11 @@ def decode_sparse(left_f, guide, samples, tree_guide, *, min_disp, num_disp, par
     ndarray, float32 (H, W)
     """
     with timer("tree"):
-        tree, = _tree.build_trees([tree_guide], sigma=params.tree_sigma, median_size=params.tree_median)
+        tree, = _mst.build_trees([tree_guide], sigma=params.tree_sigma, median_size=params.tree_median)
     with timer("jbf_fill"):
         # The fill writes its volume in the tree's depth-first row order, so the
         # aggregation walk streams through it (half the time of a pixel-order walk).
-        layout = _tree.tree_layout(tree)
+        layout = _mst.tree_layout(tree)
         cost = sparse_filled_cost(left_f, guide, samples, min_disp=min_disp, num_disp=volume_layers(num_disp),
                                   params=params, layout=layout)
     with timer("aggregate"):  # the winners are taken during the aggregation's walk

@@ -6,7 +6,7 @@ import pytest
 from stereobudget._kernels import fill_zero, take
 from stereobudget.cost import float_and_gray, to_float_image, to_gray
 from stereobudget.aggregate._refine import _stable_levels
-from stereobudget.aggregate._tree import _uint16_keys
+from stereobudget.aggregate._mst import _uint16_keys
 
 
 @pytest.mark.parametrize("size", [0, 1, 5, 70_000, 200_003])
