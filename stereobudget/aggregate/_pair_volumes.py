@@ -31,7 +31,7 @@ from numba import njit, prange
 
 from .._kernels._prefetch import prefetch_row
 from .._kernels._simd import LANES, skewed_block_copy
-from ..fill._bilateral import SliceGrids, slice_pixel, slice_scratch
+from ..fill._grid import SliceGrids, slice_pixel, slice_scratch
 from ..cost._cost import dense_pixel_costs, gradient_sources, reversed_right_row
 from .._kernels._scratch import empty_volume
 

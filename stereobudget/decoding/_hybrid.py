@@ -18,7 +18,8 @@ from ..aggregate._pair_volumes import pair_cost_rows
 from ..aggregate._refine import left_right_refined_rows, pair_trees
 from ..cost._census import mix_spaced_census, spaced_census
 from ..cost._cost import to_gray
-from ..fill._bilateral import release_grids, sparse_dsi_grids
+from ..fill._bilateral import sparse_dsi_grids
+from ..fill._grid import release_grids
 from ..fill._lowpass import gaussian_lowpass, lowpass_interpolation
 from ..cost._layers import volume_layers
 from .._kernels import _scratch as scratch

@@ -47,7 +47,7 @@ def sample_arrays(samples: SampleSet):
 def _gap_aware_filter(guide, rows, cols, values, **kwargs):
     """:func:`stereobudget.fill.sparse_joint_bilateral` of values that may hold NaN gaps
     (mosaic samples): each channel normalised by its own samples (0 where none reaches)."""
-    from ..fill._bilateral import sparse_joint_bilateral
+    from ..fill._grid import sparse_joint_bilateral
     known = ~np.isnan(values)
     if known.all():
         return sparse_joint_bilateral(guide, rows, cols, values, **kwargs)

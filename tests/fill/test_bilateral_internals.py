@@ -9,6 +9,7 @@ from numba import njit
 from stereobudget.cost import SparseCostTerms
 from stereobudget.fill import FillScale
 from stereobudget.fill import _bilateral as bilateral
+from stereobudget.fill import _grid as grid
 from stereobudget.encoding import encode_image
 from stereobudget.cost import sample_row_steps, to_float_image, to_gray
 from stereobudget.sampling import SamplingPattern, grid_shape
@@ -77,32 +78,32 @@ def _slice_by_layer(grids, guide, out, light):
     below and from the band's first layer."""
     h, w = guide.shape
     n_out = out.shape[2]
-    den, corner_index, band_index, corner_weight = bilateral.slice_scratch(n_out)
+    den, corner_index, band_index, corner_weight = grid.slice_scratch(n_out)
     for y in range(h):
         for x in range(w):
             o = out[y, x]
-            y0, ty = bilateral._hat(y * grids.inv_cell_s, grids.gy)
-            x0, tx = bilateral._hat(x * grids.inv_cell_s, grids.gx)
-            z0, tz = bilateral._hat(guide[y, x] * grids.inv_cell_r, grids.gz)
+            y0, ty = grid._hat(y * grids.inv_cell_s, grids.gy)
+            x0, tx = grid._hat(x * grids.inv_cell_s, grids.gx)
+            z0, tz = grid._hat(guide[y, x] * grids.inv_cell_r, grids.gz)
             n = min(grids.first_missing_layer[x0], n_out)
-            bilateral._trilinear_corners(y0, ty, x0, tx, z0, tz, grids.gx, grids.gz, corner_weight, corner_index)
-            bilateral._add_corners_from(grids.values, corner_index, corner_weight, 0, n, o)
+            grid._trilinear_corners(y0, ty, x0, tx, z0, tz, grids.gx, grids.gz, corner_weight, corner_index)
+            grid._add_corners_from(grids.values, corner_index, corner_weight, 0, n, o)
             start = grids.first_band_layer[x0]
-            bilateral._layer_weights(grids.base_weights, corner_index, corner_weight, min(start, n), den, grids.eps)
+            grid._layer_weights(grids.base_weights, corner_index, corner_weight, min(start, n), den, grids.eps)
             if start < n:
-                bilateral._trilinear_corners(y0, ty, x0, tx, z0, tz, grids.band, grids.gz, corner_weight,
+                grid._trilinear_corners(y0, ty, x0, tx, z0, tz, grids.band, grids.gz, corner_weight,
                                              band_index)
-                bilateral._add_corners_from(grids.band_weights, band_index, corner_weight, start, n, den)
+                grid._add_corners_from(grids.band_weights, band_index, corner_weight, start, n, den)
             for i in range(n):
                 if den[i] > grids.eps:
                     o[i] = o[i] / den[i]
                     continue
                 light[0 if i < start else 1] += 1
-                sv = bilateral._bilinear(grids.spatial_values, y0, ty, x0, tx, i)
+                sv = grid._bilinear(grids.spatial_values, y0, ty, x0, tx, i)
                 if i >= start:
-                    sw = bilateral._bilinear(grids.spatial_band, y0, ty, x0, tx, i)
+                    sw = grid._bilinear(grids.spatial_band, y0, ty, x0, tx, i)
                 else:
-                    sw = bilateral._bilinear(grids.spatial_base, y0, ty, x0, tx, grids.layer_base[i])
+                    sw = grid._bilinear(grids.spatial_base, y0, ty, x0, tx, grids.layer_base[i])
                 o[i] = sv / sw if sw > grids.eps else grids.missing_value
             for i in range(n, n_out):
                 o[i] = grids.missing_value
@@ -125,7 +126,7 @@ def test_light_layers_take_the_spatial_fallback_layer_by_layer(scene, stride, of
     light = np.zeros(2, np.int64)
     _slice_by_layer(grids, guide, expected, light)
     assert light[0] > 0 and light[1] > 0
-    np.testing.assert_array_equal(bilateral.slice_volume(guide, grids), expected)
+    np.testing.assert_array_equal(grid.slice_volume(guide, grids), expected)
 
 
 def test_lattice_detection_rejects_other_layouts(scene):
@@ -254,55 +255,12 @@ def test_base_weights_end_in_zero_cells_and_are_reused_by_the_next_fill(scene):
     cells = grids.gy * grids.gx * grids.gz
     channels = grids.base_weights.shape[1]
     assert channels == 5
-    assert (grids.base_weights.shape[0] - cells) * channels >= bilateral.PERIOD_READ_PAST
+    assert (grids.base_weights.shape[0] - cells) * channels >= grid.PERIOD_READ_PAST
     assert np.all(grids.base_weights[cells:] == 0)
     address = grids.base_weights.ctypes.data
     with _scratch.in_use():                                   # as within a decode
-        bilateral.release_grids(grids)
+        grid.release_grids(grids)
         again = bilateral.sparse_dsi_grids(left, guide, rows, cols, values, **kwargs)
         assert again.base_weights.ctypes.data == address
-        bilateral.release_grids(again)
+        grid.release_grids(again)
     assert _scratch.spare_bytes() == 0 or _scratch.keeping()
-
-
-def _blur_axis_in_tap_order(grid, kernel, axis):
-    """One zero-boundary pass: every output starts from its first tap inside the grid and
-    adds the others in kernel order (float32 products and sums, as the kernel does)."""
-    r = kernel.shape[0] // 2
-    n = grid.shape[axis]
-    moved = np.moveaxis(grid, axis, 0)
-    out = np.empty_like(moved)
-    for i in range(n):
-        taps = [t for t in range(-r, r + 1) if 0 <= i + t < n]
-        acc = kernel[taps[0] + r] * moved[i + taps[0]]
-        for t in taps[1:]:
-            acc = acc + kernel[t + r] * moved[i + t]
-        out[i] = acc
-    return np.moveaxis(out, 0, axis)
-
-
-@pytest.mark.parametrize("channels", [1, 5, 64])
-@pytest.mark.parametrize("guide_max", [255.0, 20.0])  # 20: fewer intensity cells than z-taps
-@pytest.mark.parametrize("cells_per_sigma", [1.0, 2.0])  # seven taps (summed in one pass) and more
-def test_grid_blur_is_three_passes_bit_for_bit(channels, guide_max, cells_per_sigma):
-    from stereobudget.fill._bilateral import _blur_grid, grid_geometry
-    geom = grid_geometry(70, 95, guide_max, sigma_s=10.0, sigma_r=15.0, cells_per_sigma_s=cells_per_sigma,
-                         cells_per_sigma_r=cells_per_sigma)
-    rng = np.random.default_rng(3)
-    grid = rng.uniform(0, 50, geom.shape + (channels,)).astype(np.float32)
-    grid[rng.random(geom.shape) < 0.6] = 0.0  # splats leave most cells empty
-    expected = grid
-    for axis, std in ((0, geom.blur_s), (1, geom.blur_s), (2, geom.blur_r)):
-        radius = max(1, int(np.ceil(3.0 * std)))
-        t = np.arange(-radius, radius + 1, dtype=np.float64)
-        kernel = np.exp(-0.5 * (t / std) ** 2)
-        expected = _blur_axis_in_tap_order(expected, (kernel / kernel.sum()).astype(np.float32), axis)
-    blurred, spatial = _blur_grid(grid.copy(), geom)
-    assert blurred.dtype == np.float32 and blurred.shape == grid.shape
-    np.testing.assert_array_equal(blurred, expected)
-    # The spatial-only fallback: the blurred cells added in intensity order from the first.
-    summed = expected[:, :, 0].copy()
-    for z in range(1, grid.shape[2]):
-        summed += expected[:, :, z]
-    assert spatial.dtype == np.float32
-    np.testing.assert_array_equal(spatial, summed)
