@@ -74,6 +74,18 @@ def limit_shares(disparity: np.ndarray, *, min_disp: int, max_disp: int) -> tupl
             float(np.count_nonzero(values >= max_disp - 0.5)) / count)
 
 
+def _pixel_samples(samples):
+    """``(rows, cols, values)`` of samples sent as pixels at known positions, or None (block means,
+    or a pattern without positions): what the checks compare I1 with."""
+    if samples.pattern.kind == "downsample":
+        return None
+    from ..synthesis._inpaint import sample_arrays
+    try:
+        return sample_arrays(samples)
+    except Exception:  # noqa: BLE001 -- a pattern without pixel positions: no check
+        return None
+
+
 def psnr_at_samples(left: np.ndarray, disparity: np.ndarray, samples) -> float:
     """PSNR (dB, 8-bit units) of I1 warped into the right view by ``disparity``, at the samples.
 
@@ -81,14 +93,11 @@ def psnr_at_samples(left: np.ndarray, disparity: np.ndarray, samples) -> float:
     says nothing about the disparity).  NaN when the pattern sends no pixels at known
     positions (``downsample``) or no sample is reached.
     """
-    if samples.pattern.kind == "downsample":
-        return math.nan
-    from ..synthesis._inpaint import sample_arrays
     from ..synthesis._warp import warp_left_to_right
-    try:
-        rows, cols, values = sample_arrays(samples)
-    except Exception:  # noqa: BLE001 -- a pattern without pixel positions: no check
+    found = _pixel_samples(samples)
+    if found is None:
         return math.nan
+    rows, cols, values = found
     warped, holes = warp_left_to_right(left, disparity)
     warped = warped if warped.ndim == 3 else warped[:, :, None]
     reached = ~holes[rows, cols]
@@ -106,13 +115,10 @@ def psnr_at_zero_disparity(left: np.ndarray, samples) -> float:
     the right image given as LEFT reproduces its own samples up to the codec's error.  NaN
     when the pattern sends no pixels at known positions.
     """
-    if samples.pattern.kind == "downsample":
+    found = _pixel_samples(samples)
+    if found is None:
         return math.nan
-    from ..synthesis._synthesis import sample_arrays
-    try:
-        rows, cols, values = sample_arrays(samples)
-    except Exception:  # noqa: BLE001 -- a pattern without pixel positions: no check
-        return math.nan
+    rows, cols, values = found
     image = left if left.ndim == 3 else left[:, :, None]
     scale = 1.0 / 257.0 if image.dtype == np.uint16 else 1.0
     diff = image[rows, cols].astype(np.float64) * scale - values
