@@ -20,7 +20,8 @@ from . import _common as common
 
 log = logging.getLogger("stereobudget")
 
-_OUTPUT_OPTIONS = (("disparity", "--disparity"), ("preview", "--preview"), ("right", "--right"))
+_OUTPUT_OPTIONS = (("disparity", "--disparity"), ("preview", "--preview"), ("right", "--right"),
+                   ("depth", "--depth"), ("points", "--points"))
 
 
 class _MaxDisp(click.ParamType):
@@ -162,6 +163,19 @@ def _decode_stream(left, samples, templates: dict, *, as_json: bool, **options) 
 @click.option("--preview", metavar="OUT.png", default=None, help="Colour preview of the disparity (PNG).")
 @click.option("--right", metavar="OUT", default=None,
               help="Recovered right image (PNG/TIFF, the input's channels and bit depth; '-' = stdout).")
+@click.option("--calibration", metavar="FILE", default=None,
+              help="Stereo calibration of the two cameras (OpenCV YAML/XML with M1 D1 M2 D2 R T, the same "
+                   "in JSON, or Middlebury calib.txt): the pair is rectified at the host and decoded in the "
+                   "rectified left frame.  Needed by --depth and --points.")
+@click.option("--depth", metavar="OUT", default=None,
+              help="Depth in metres along the left camera's axis, for each pixel of LEFT as given: .tif/.pfm/"
+                   ".npy float32 (NaN, PFM +inf = invalid) or .png 16-bit millimetres (0 = invalid).")
+@click.option("--points", metavar="OUT.ply", default=None,
+              help="Point cloud: binary PLY, x y z float32 in metres in the left camera's coordinates (x right, "
+                   "y down, z forward) + red green blue; invalid pixels left out.")
+@click.option("--frame", type=click.Choice(("rectified", "raw")), default=None,
+              help="With --calibration: the pixel grid of --disparity, --preview and --depth: the rectified "
+                   "left frame, or LEFT as given.  [default: disparity and preview rectified, depth raw]")
 @click.option("--max-memory", metavar="SIZE", default=None,
               help="Refuse a pair whose decode would need more memory than SIZE (e.g. 8G, 500M).  "
                    "[default: 75 % of the available memory, or $STEREOBUDGET_MAX_MEMORY]")
@@ -172,7 +186,8 @@ def _decode_stream(left, samples, templates: dict, *, as_json: bool, **options) 
 @common.version_option
 @common.handle_errors
 def decode_command(inputs, left_dir, samples_dir, manifest, max_disp, min_disp, method, disparity,
-                   disparity_format, preview, right, max_memory, jobs, scheduler, overwrite, as_json):
+                   disparity_format, preview, right, calibration, depth, points, frame, max_memory, jobs,
+                   scheduler, overwrite, as_json):
     """Recover the disparity of LEFT from the right camera's SAMPLES (.sbs).
 
     One of LEFT and SAMPLES may be '-' (standard input).  LEFT and SAMPLES may also be
@@ -184,8 +199,8 @@ def decode_command(inputs, left_dir, samples_dir, manifest, max_disp, min_disp, 
     it), any other is redone; --overwrite redoes everything.  Exit status 1 if any
     pair failed.
 
-    The pair must be rectified (a scene point on the same row in both images) and LEFT
-    is the left camera's image.  Warnings (stderr, and "warnings" in --json) say when
+    The pair must be rectified (a scene point on the same row in both images), or its
+    calibration given with --calibration, and LEFT is the left camera's image.  Warnings (stderr, and "warnings" in --json) say when
     many pixels sit at the range limits, when the result does not reproduce the
     samples, and when the pair looks swapped or not rectified.
 
@@ -202,6 +217,7 @@ def decode_command(inputs, left_dir, samples_dir, manifest, max_disp, min_disp, 
       sb-decode left.png right.sbs --max-disp 60 --disparity d.tif --right r.png --json
       sb-decode left.png right.sbs --disparity - --format png > d.png
       ssh cam sb-encode - -o - < r.png | sb-decode left.png - --max-disp 60 --disparity d.pfm
+      sb-decode left.png right.sbs --calibration stereo.yml --depth z.tif --points cloud.ply
       sb-decode --left-dir L --samples-dir S --max-disp 60 \\
           --disparity 'D/{stem}.pfm' --right 'R/{stem}.png' -j 2
       sb-decode --manifest pairs.csv --max-disp 60 --disparity 'D/{stem}.pfm' --scheduler local
@@ -217,9 +233,11 @@ def decode_command(inputs, left_dir, samples_dir, manifest, max_disp, min_disp, 
         except ValueError as exc:
             raise OptionError(f"--max-memory: {exc}") from None
     templates = {name: value for name, value in (("disparity", disparity), ("preview", preview),
-                                                  ("right", right)) if value is not None}
+                                                  ("right", right), ("depth", depth), ("points", points))
+                 if value is not None}
     if not templates:
-        raise OptionError("nothing to write: give --disparity, --preview and/or --right")
+        raise OptionError("nothing to write: give --disparity, --preview, --right, --depth and/or --points")
+    geometry = dict(calibration=calibration, frame=frame)
     if _is_stream(inputs, left_dir, samples_dir, manifest, templates):
         if scheduler is not None:
             raise OptionError("a stream is decoded in order, in one process: --scheduler applies to "
@@ -231,7 +249,7 @@ def decode_command(inputs, left_dir, samples_dir, manifest, max_disp, min_disp, 
             raise OptionError("--json cannot be combined with an output on '-' (stdout carries the images)")
         _decode_stream(inputs[0], inputs[1], templates, max_disp=max_disp, min_disp=min_disp, method=method,
                        overwrite=overwrite, max_memory=max_memory, disparity_format=disparity_format,
-                       as_json=as_json)
+                       as_json=as_json, **geometry)
         return
     templated = {name: has_template(value, f"--{name}") for name, value in templates.items()}
     pairs = _pairs_from_arguments(inputs, left_dir, samples_dir, manifest)
@@ -262,7 +280,7 @@ def decode_command(inputs, left_dir, samples_dir, manifest, max_disp, min_disp, 
             left=pair.left, samples=pair.samples, max_disp=pair_max,
             min_disp=pair.min_disp if pair.min_disp is not None else min_disp, method=method,
             overwrite=overwrite, batch=batch, problem=pair.problem, max_memory=max_memory,
-            disparity_format=disparity_format, **outputs))
+            disparity_format=disparity_format, **geometry, **outputs))
     if not batch:
         summary = decode_file(job_list[0])
         log.info("%s + %s -> %s: %dx%d, epsilon %.2f %%, %s, disparity %d..%d (%s), %.2f s", summary["left"],

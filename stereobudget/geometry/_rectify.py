@@ -144,7 +144,7 @@ def rectify_stereo(calibration: StereoCalibration, width: int, height: int) -> R
 
 
 @functools.lru_cache(maxsize=8)
-def _cached(path, mtime_ns, size, width, height):
+def _cached(path, absolute, mtime_ns, size, width, height):
     return rectify_stereo(read_calibration(path), width, height)
 
 
@@ -154,13 +154,13 @@ def rectification_for(path: str, width: int, height: int) -> Rectification:
     A stream of frames (or a batch in one process) reads the file and computes the maps
     for its first frame and reuses them (a changed file is read again).
     """
-    path = os.path.abspath(os.fspath(path))
+    path = os.fspath(path)
     try:
         st = os.stat(path)
         key = (st.st_mtime_ns, st.st_size)
     except OSError:
         key = (None, None)     # read_calibration reports it
-    return _cached(path, *key, int(width), int(height))
+    return _cached(path, os.path.abspath(path), *key, int(width), int(height))
 
 
 rectification_for.cache_info = _cached.cache_info
