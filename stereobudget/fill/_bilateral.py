@@ -1078,7 +1078,7 @@ def sparse_joint_bilateral(guide: np.ndarray, rows: np.ndarray, cols: np.ndarray
 def filled_sparse_dsi(left: np.ndarray, guide: np.ndarray, rows: np.ndarray, cols: np.ndarray,
                       right_values: np.ndarray, *, min_disp: int, num_disp: int, scale: FillScale,
                       terms: SparseCostTerms, right_steps: np.ndarray | None = None,
-                      pixel_of_row: np.ndarray | None = None) -> np.ndarray:
+                      pixel_of_row: np.ndarray | None = None, right_codes: np.ndarray | None = None) -> np.ndarray:
     """The paper's filled sparse DSI: Eq. (2) at the samples, spread by Eq. (3) to every pixel.
 
     Parameters
@@ -1103,6 +1103,11 @@ def filled_sparse_dsi(left: np.ndarray, guide: np.ndarray, rows: np.ndarray, col
     pixel_of_row : ndarray of int (H * W,), optional
         Row ``k`` of an ``(H * W, num_disp)`` result holds pixel ``pixel_of_row[k]``
         (row-major), e.g. a tree's depth-first order (:class:`stereobudget.aggregate.TreeLayout`).
+    right_codes : ndarray, int64 (n,), optional
+        Lattice census code of each sample, for samples that came from a grid but no
+        longer lie on one (a grid placed in a rectified frame); with
+        ``terms.census_spacing`` they meet I1's census at that spacing.  Default: the
+        codes of a regular grid sent row by row, or no census.
 
     Returns
     -------
@@ -1120,7 +1125,7 @@ def filled_sparse_dsi(left: np.ndarray, guide: np.ndarray, rows: np.ndarray, col
     ((20, 30, 4), dtype('float32'))
     """
     grids = sparse_dsi_grids(left, guide, rows, cols, right_values, min_disp=min_disp, num_disp=num_disp,
-                             scale=scale, terms=terms, right_steps=right_steps)
+                             scale=scale, terms=terms, right_steps=right_steps, right_codes=right_codes)
     volume = slice_volume(guide, grids, pixel_of_row=pixel_of_row)
     release_grids(grids)
     return volume
@@ -1131,15 +1136,20 @@ def release_grids(grids: SliceGrids) -> None:
     recycle(grids.values, grids.base_weights, grids.band_weights)
 
 
-def _census_codes(guide, rows, cols, right_values, terms):
+def _census_codes(guide, rows, cols, right_values, terms, right_codes=None):
     """Lattice census codes of the samples and I1's codes at the same spacing, or (None, None).
 
-    The samples must be a regular grid sent row by row (rows x cols in row-major order).
+    The samples must be a regular grid sent row by row (rows x cols in row-major order),
+    unless their codes are given (``right_codes``).
     """
     from ..cost._census import lattice_census, spaced_census
     from ..cost._cost import to_gray
     if terms.census_spacing is None or terms.census_weight <= 0 or len(rows) < 4:
         return None, None
+    if right_codes is not None:
+        spacing_x, spacing_y = terms.census_spacing
+        return (np.ascontiguousarray(right_codes, np.int64),
+                spaced_census(guide, spacing_x=spacing_x, spacing_y=spacing_y))
     rows, cols = np.asarray(rows, np.int64), np.asarray(cols, np.int64)
     n_cols = int(np.argmax(rows != rows[0])) if np.any(rows != rows[0]) else len(rows)
     if len(rows) % n_cols:
@@ -1152,7 +1162,8 @@ def _census_codes(guide, rows, cols, right_values, terms):
 
 def sparse_dsi_grids(left: np.ndarray, guide: np.ndarray, rows: np.ndarray, cols: np.ndarray,
                      right_values: np.ndarray, *, min_disp: int, num_disp: int, scale: FillScale,
-                     terms: SparseCostTerms, right_steps: np.ndarray | None = None) -> SliceGrids:
+                     terms: SparseCostTerms, right_steps: np.ndarray | None = None,
+                     right_codes: np.ndarray | None = None) -> SliceGrids:
     """The splatted and blurred grids of :func:`filled_sparse_dsi`, not yet sliced.
 
     For callers that slice pixel by pixel inside their own kernel (:func:`slice_pixel`),
@@ -1169,7 +1180,7 @@ def sparse_dsi_grids(left: np.ndarray, guide: np.ndarray, rows: np.ndarray, cols
     if right_steps is None:
         right_steps = np.full(len(rows), np.nan, np.float32)
         terms = replace(terms, step_weight=0.0)
-    right_codes, left_codes = _census_codes(guide, rows, cols, right_values, terms)
+    right_codes, left_codes = _census_codes(guide, rows, cols, right_values, terms, right_codes)
     if right_codes is None:
         right_codes, left_codes = np.full(len(rows), -1, np.int64), np.zeros((h, w), np.uint8)
         terms = replace(terms, census_weight=0.0)

@@ -13,7 +13,7 @@ from .._lazy import attach
 
 __getattr__, __dir__, __all__ = attach(__name__, {
     '_calibration': ['UNITS', 'DISTORTION_LENGTHS', 'StereoCalibration', 'read_calibration', 'check_image_size'],
-    '_rectify': ['Rectification', 'rectify_stereo', 'rectification_for', 'rectify_left', 'PlacedSamples',
+    '_rectify': ['Rectification', 'rectify_stereo', 'rectification_for', 'rectify_left', 'PlacedSamples', 'SampleLattice',
                  'map_sample_positions', 'rectify_samples', 'raw_left_disparity', 'depth_map', 'raw_points',
                  'point_cloud', 'raw_right_positions'],
     '_output': ['DEPTH_EXTENSIONS', 'PNG_DEPTH_MAX_M', 'encode_depth', 'write_depth', 'read_depth', 'encode_ply',

@@ -188,16 +188,41 @@ def rectify_left(image: np.ndarray, rectification: Rectification) -> np.ndarray:
 
 
 @dataclass(frozen=True, eq=False)
+class SampleLattice:
+    """The grid a placed sample set came from: its neighbours are still lattice neighbours.
+
+    Attributes
+    ----------
+    shape : (rows, cols)
+        The raw grid.
+    index : ndarray of int64 (n,)
+        Row-major index in the raw grid of each placed sample.
+    values : ndarray (rows * cols, C)
+        Every sample of the raw grid (RGB order), placed or not.
+    spacing : (int, int)
+        Median distance, in pixels of the frame, between placed row and column neighbours.
+    """
+
+    shape: tuple
+    index: np.ndarray
+    values: np.ndarray
+    spacing: tuple
+
+
+@dataclass(frozen=True, eq=False)
 class PlacedSamples(SampleSet):
     """Samples at explicit positions (rows, cols) of a ``height x width`` frame, in transmission order.
 
     What :func:`rectify_samples` gives: the decoders read it like any irregular sample
-    set (its pattern's kind is ``jitter``; its strides set the fill's scale).  It is not
+    set (its pattern's kind is ``jitter``; its strides, the spacing the samples have in
+    this frame, set the fill's scale).  Samples of a grid keep their lattice (``lattice``),
+    so the Sparse cost's steps and census still compare lattice neighbours.  It is not
     written to a sample file.
     """
 
     rows: np.ndarray | None = None
     cols: np.ndarray | None = None
+    lattice: SampleLattice | None = None
 
     def __post_init__(self):
         v = self.values
@@ -253,11 +278,23 @@ def rectify_samples(samples: SampleSet, rectification: Rectification) -> SampleS
     order = np.lexsort((distance, pixel))
     _, first = np.unique(pixel[order], return_index=True)
     keep = np.sort(index[order[first]])
-    pattern = SamplingPattern("jitter", samples.pattern.stride_x, samples.pattern.stride_y)
+    spacing = (samples.pattern.stride_x, samples.pattern.stride_y)
+    lattice = None
+    if samples.pattern.is_regular_grid:
+        from ..sampling._patterns import grid_shape
+        shape = grid_shape(samples.pattern, samples.height, samples.width)
+        grid_xy = xy.reshape(shape + (2,))
+        # The spacing the grid has where it landed (alpha 1 shrinks the frame a little).
+        dx = np.median(np.hypot(*(grid_xy[:, 1:] - grid_xy[:, :-1]).reshape(-1, 2).T)) if shape[1] > 1 else spacing[0]
+        dy = np.median(np.hypot(*(grid_xy[1:] - grid_xy[:-1]).reshape(-1, 2).T)) if shape[0] > 1 else spacing[1]
+        spacing = (max(1, int(round(dx))), max(1, int(round(dy))))
+        lattice = SampleLattice(shape=shape, index=keep.astype(np.int64), values=samples.values_rgb(),
+                                spacing=spacing)
+    pattern = SamplingPattern("jitter", *spacing)
     return PlacedSamples(height=height, width=width, channel_order=samples.channel_order, pattern=pattern,
                          values=np.ascontiguousarray(samples.values[keep]), codec=samples.codec,
                          value_bits=samples.value_bits, quality=samples.quality,
-                         rows=yr[keep].astype(np.int64), cols=xr[keep].astype(np.int64))
+                         rows=yr[keep].astype(np.int64), cols=xr[keep].astype(np.int64), lattice=lattice)
 
 
 def _sample_nearest(image, positions):
@@ -404,6 +441,6 @@ def raw_right_positions(disparity: np.ndarray, rectification: Rectification) -> 
     return out
 
 
-__all__ = ["Rectification", "rectify_stereo", "rectification_for", "rectify_left", "PlacedSamples",
+__all__ = ["Rectification", "rectify_stereo", "rectification_for", "rectify_left", "PlacedSamples", "SampleLattice",
            "map_sample_positions", "rectify_samples", "raw_left_disparity", "depth_map", "raw_points",
            "point_cloud", "raw_right_positions"]

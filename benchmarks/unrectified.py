@@ -1,0 +1,193 @@
+#!/usr/bin/env python
+"""Unrectified real pairs: ``sb-decode --calibration`` against the decode of the rectified pair.
+
+Each realdev scene (``../shared/data/realdev``) is made unrectified with exact ground truth
+(:func:`stereobudget.geometry.unrectify_pair`): ``K`` with f = the image width and the
+principal point at the centre, each camera turned by 0.5-2 degrees about each axis
+(random signs) and given a radial distortion k1 of +-0.05-0.1, drawn from a seed per
+scene; the calibration that undoes it is written as OpenCV YAML.  The raw right image is
+encoded (``--epsilon 0.04``: the densest grid whose coded lattice fits 4 % of the raw
+image; or a raw grid at stride 5), and decoded through ``stereobudget.batch.decode_file``
+exactly as ``sb-decode`` does:
+
+* ``rectified``: the rectified pair, scored as ``benchmarks/evaluate_real.py`` does (bad =
+  error > 1 px on ``nonocc.png`` where the scene has one, else on every pixel with ground
+  truth);
+* ``calibrated``: the raw pair with ``--calibration``, scored on the raw left image: for
+  each raw left pixel whose rectified position has ground truth (and is selected by the
+  same mask), the raw right position its result implies (mapped back through the
+  rectification) against the true one; bad = more than 1 px away, or no result.  Nothing
+  is cropped (alpha 1), so no pixel both cameras see is lost.
+
+Both decodes search the disparity range the ground truth needs (in their own frame):
+``[min(0, floor(min) - 4), ceil(max) + 4]``, as evaluate_real.py does.
+
+Speed: the time the rectification adds to a frame (I1 resampled and the samples placed,
+and the overlay of the maps, made once per stream) against the decode's total, in the
+same process.
+
+Examples
+--------
+    python benchmarks/unrectified.py
+    python benchmarks/unrectified.py --scenes Art,Adirondack --configs s5
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import statistics
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from stereobudget.batch import DecodeJob, decode_file
+from stereobudget.geometry import (raw_right_positions, rectification_for, unrectify_pair, write_calibration)
+from stereobudget.io import encode_file, read_disparity, write_image
+from stereobudget.sampling import SamplingPattern
+
+SHARED = Path(__file__).resolve().parents[2] / "shared" / "data"
+CONFIGS = {"eps4": dict(size_fraction=0.04), "s5": dict()}
+
+
+def load_scene(folder: Path):
+    left = cv2.cvtColor(cv2.imread(str(folder / "left.png"), cv2.IMREAD_COLOR), cv2.COLOR_BGR2RGB)
+    right = cv2.cvtColor(cv2.imread(str(folder / "right.png"), cv2.IMREAD_COLOR), cv2.COLOR_BGR2RGB)
+    gt = cv2.imread(str(folder / "disp_left.png"), cv2.IMREAD_UNCHANGED).astype(np.float32) / 256.0
+    mask = gt > 0
+    if (folder / "nonocc.png").exists():
+        mask &= cv2.imread(str(folder / "nonocc.png"), cv2.IMREAD_GRAYSCALE) == 255
+    gt[gt <= 0] = np.nan
+    return left, right, gt, mask
+
+
+def camera_turns(seed: int):
+    """Rotation vectors (radians) of both cameras and their k1, drawn from ``seed``."""
+    rng = np.random.default_rng(seed)
+
+    def signed(low, high, n):
+        return rng.uniform(low, high, n) * rng.choice([-1.0, 1.0], n)
+
+    return (np.radians(signed(0.5, 2.0, 3)), np.radians(signed(0.5, 2.0, 3)),
+            float(signed(0.05, 0.1, 1)[0]), float(signed(0.05, 0.1, 1)[0]))
+
+
+def search_range(d_min, d_max):
+    return min(0, math.floor(d_min) - 4), math.ceil(d_max) + 4
+
+
+def encode(image, folder: Path, name: str, config: str) -> str:
+    source = folder / f"{name}.png"
+    write_image(source, image, channel_order="rgb", overwrite=True)
+    out = folder / f"{name}_{config}.sbs"
+    if config == "s5":
+        encode_file(source, out, pattern=SamplingPattern("grid", 5, 5), overwrite=True)
+    else:
+        encode_file(source, out, pattern=SamplingPattern("grid"), overwrite=True, **CONFIGS[config])
+    return str(out)
+
+
+def run_scene(folder: Path, configs, work: Path, seed: int) -> list[dict]:
+    left, right, gt, mask = load_scene(folder)
+    h, w = gt.shape
+    r1, r2, k1a, k1b = camera_turns(seed)
+    pair = unrectify_pair(left, right, gt, rotation_left=r1, rotation_right=r2, k1_left=k1a, k1_right=k1b,
+                          mask=mask)
+    calibration = work / "stereo.yml"
+    write_calibration(calibration, pair.calibration)
+    write_image(work / "left.png", left, channel_order="rgb", overwrite=True)
+    write_image(work / "raw_left.png", pair.left, channel_order="rgb", overwrite=True)
+    t = time.perf_counter()
+    rect = rectification_for(str(calibration), w, h)      # the decodes below reuse it, as a stream does
+    maps_s = time.perf_counter() - t
+    # The true disparity range in the host's rectified frame, from the true matches.
+    scored = pair.scored
+    xl = rect.left_positions[..., 0][scored]
+    c = pair.calibration
+    true_r = cv2.undistortPoints(pair.true_right[scored].reshape(-1, 1, 2), c.M2, c.D2, R=rect.R2,
+                                 P=rect.P2).reshape(-1, 2)
+    d_rect = xl - true_r[:, 0]
+    rows = []
+    for config in configs:
+        samples_rect = encode(right, work, "right", config)
+        samples_raw = encode(pair.right, work, "raw_right", config)
+        lo, hi = search_range(np.nanmin(gt[mask]), np.nanmax(gt[mask]))
+        plain = decode_file(DecodeJob(left=str(work / "left.png"), samples=samples_rect, max_disp=hi, min_disp=lo,
+                                      disparity=str(work / "d.pfm"), overwrite=True))
+        d = read_disparity(work / "d.pfm")
+        bad_rect = 100.0 * np.mean(~(np.abs(d - gt)[mask] <= 1.0))
+        lo_c, hi_c = search_range(float(d_rect.min()), float(d_rect.max()))
+        cal = decode_file(DecodeJob(left=str(work / "raw_left.png"), samples=samples_raw, max_disp=hi_c,
+                                    min_disp=lo_c, disparity=str(work / "dc.pfm"), calibration=str(calibration),
+                                    overwrite=True))
+        dc = read_disparity(work / "dc.pfm")
+        implied = raw_right_positions(dc, rect)
+        error = np.hypot(*(implied - pair.true_right).transpose(2, 0, 1))[scored]
+        bad_cal = 100.0 * np.mean(~(error <= 1.0))
+        t = cal["timings"]
+        rows.append({"scene": folder.name, "config": config, "stride": plain["stride_x"],
+                     "raw_stride": cal["stride_x"], "rectified": bad_rect, "calibrated": bad_cal,
+                     "range": (lo, hi), "range_cal": (lo_c, hi_c), "rectify_s": t.get("rectify", 0.0),
+                     "maps_s": maps_s, "decode_s": t["total"], "plain_s": plain["timings"]["total"],
+                     "placed": cal["calibration"]["samples_placed"], "sent": cal["sample_count"]})
+    return rows
+
+
+def main(argv=None):
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--scenes", default="", help="comma-separated scene names (default: all of realdev)")
+    parser.add_argument("--configs", default="eps4,s5", help="eps4 (--epsilon 0.04) and/or s5 (raw stride 5)")
+    parser.add_argument("--seed", type=int, default=50, help="base seed of the camera turns")
+    args = parser.parse_args(argv)
+    root = SHARED / "realdev"
+    if not root.is_dir():
+        print(f"{root} is absent: nothing to measure", file=sys.stderr)
+        return 1
+    folders = sorted(p for p in root.iterdir() if p.is_dir())
+    if args.scenes:
+        wanted = args.scenes.split(",")
+        folders = [f for f in folders if f.name in wanted]
+    configs = [c for c in args.configs.split(",") if c]
+    rows = []
+    with tempfile.TemporaryDirectory() as tmp:
+        for number, folder in enumerate(folders):
+            work = Path(tmp) / folder.name
+            work.mkdir()
+            seed = args.seed * 1000 + sum(folder.name.encode())
+            start = time.perf_counter()
+            scene_rows = run_scene(folder, configs, work, seed)
+            rows += scene_rows
+            for row in scene_rows:
+                print(f"{row['scene']:16s} {row['config']:5s} stride {row['stride']}/{row['raw_stride']}  "
+                      f"rectified {row['rectified']:6.2f}  calibrated {row['calibrated']:6.2f}  "
+                      f"diff {row['calibrated'] - row['rectified']:+6.2f}  ranges {row['range']} {row['range_cal']}  "
+                      f"placed {row['placed']}/{row['sent']}  rectify {1000 * row['rectify_s']:.1f} ms "
+                      f"maps {1000 * row['maps_s']:.1f} ms decode {row['decode_s']:.2f} s", flush=True)
+            print(f"  ({time.perf_counter() - start:.1f} s)", file=sys.stderr, flush=True)
+    print()
+    print("| scene | config | stride (rect/raw) | rectified | known calibration | difference |")
+    print("|---|---|---|---:|---:|---:|")
+    for row in rows:
+        print(f"| {row['scene']} | {row['config']} | {row['stride']}/{row['raw_stride']} | {row['rectified']:.2f} | "
+              f"{row['calibrated']:.2f} | {row['calibrated'] - row['rectified']:+.2f} |")
+    for config in configs:
+        sel = [r for r in rows if r["config"] == config]
+        if not sel:
+            continue
+        diffs = [r["calibrated"] - r["rectified"] for r in sel]
+        ratio = [(r["rectify_s"]) / r["decode_s"] for r in sel]
+        ratio_maps = [(r["rectify_s"] + r["maps_s"]) / r["decode_s"] for r in sel]
+        print(f"| **mean ({len(sel)})** | {config} | | {np.mean([r['rectified'] for r in sel]):.2f} | "
+              f"{np.mean([r['calibrated'] for r in sel]):.2f} | {np.mean(diffs):+.2f} (worst {max(diffs):+.2f}) |")
+        print(f"{config}: rectification per frame / decode total: median {100 * statistics.median(ratio):.1f} %, "
+              f"max {100 * max(ratio):.1f} %; with the maps (once per stream): median "
+              f"{100 * statistics.median(ratio_maps):.1f} %, max {100 * max(ratio_maps):.1f} %")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
