@@ -50,6 +50,9 @@ def sparse_fill_arguments(left_f, guide, samples, params):
     kwargs = dict(scale=scale, terms=terms, right_steps=steps)
     if codes is not None:
         kwargs["right_codes"] = codes
+    offsets = getattr(samples, "offsets", None)
+    if offsets is not None:
+        kwargs["right_offsets"] = offsets
     return (left_f, guide, rows, cols, values), kwargs
 
 

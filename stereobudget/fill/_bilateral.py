@@ -730,6 +730,7 @@ class RightSamples(NamedTuple):
     values: np.ndarray  # float32 (K, C), 8-bit units
     steps: np.ndarray   # float32 (K,), difference to the next sample of the row (NaN: none)
     codes: np.ndarray   # int64 (K,), lattice census code (-1: no census term)
+    offsets: np.ndarray  # float32 (K, 2) or (0, 2): (dy, dx) of the true position from (row, col)
 
 
 class LeftPixels(NamedTuple):
@@ -765,6 +766,23 @@ def _splat_terms(terms: SparseCostTerms, geom: GridGeometry) -> SplatTerms:
                       1.0 / geom.cell_s, 1.0 / geom.cell_r)
 
 
+@njit(cache=True, inline="always")
+def _bilinear_at(image, y, x, h, w, out):
+    """``image`` (H, W, C) at the real position (y, x), bilinear, clamped to the image; into ``out`` (C,)."""
+    y = min(max(y, 0.0), h - 1.0)
+    x = min(max(x, 0.0), w - 1.0)
+    y0 = min(int(y), h - 2) if h > 1 else 0
+    x0 = min(int(x), w - 2) if w > 1 else 0
+    ty = y - y0
+    tx = x - x0
+    y1 = min(y0 + 1, h - 1)
+    x1 = min(x0 + 1, w - 1)
+    for c in range(out.shape[0]):
+        top = image[y0, x0, c] * (1 - tx) + image[y0, x1, c] * tx
+        bottom = image[y1, x0, c] * (1 - tx) + image[y1, x1, c] * tx
+        out[c] = top * (1 - ty) + bottom * ty
+
+
 @njit(cache=True, parallel=True)
 def _splat_sparse_dsi_split(rows, cols, samples, pixels, min_disp, terms, grid_val, band_w, blocks):
     """Splat Eq. (2): right sample k at (row, col) meets left pixel (row, col + d) in layer d.
@@ -779,11 +797,12 @@ def _splat_sparse_dsi_split(rows, cols, samples, pixels, min_disp, terms, grid_v
     result does not depend on the thread count).  ``samples``: :class:`RightSamples`,
     ``pixels``: :class:`LeftPixels`, ``terms``: :class:`SplatTerms`.
     """
-    right_values, right_steps, right_codes = samples
+    right_values, right_steps, right_codes, right_offsets = samples
     left, guide, left_codes = pixels
     truncation, step_spacing, step_weight, step_truncation, census_weight, inv_cs, inv_cr = terms
     gy_n, gx_n, gz_n, num_disp = grid_val.shape
-    w = left.shape[1]
+    h, w = left.shape[0], left.shape[1]
+    subpixel = right_offsets.shape[0] == rows.shape[0]
     blocks = max(1, min(blocks, num_disp))
     band_n = band_w.shape[1]
     values_flat = grid_val.reshape(grid_val.size)
@@ -793,15 +812,24 @@ def _splat_sparse_dsi_split(rows, cols, samples, pixels, min_disp, terms, grid_v
         weights = np.empty(8, dtype=np.float64)
         offsets = np.empty(8, dtype=np.uint64)
         band_offsets = np.empty(8, dtype=np.int64)
+        at = np.empty(left.shape[2], dtype=np.float32)
         for k in range(rows.shape[0]):
             y = rows[k]
             y0, ty = _hat(y * inv_cs, gy_n)
+            fy = right_offsets[k, 0] if subpixel else np.float32(0.0)
+            fx = right_offsets[k, 1] if subpixel else np.float32(0.0)
             for i in range(first, last):
                 x = cols[k] + min_disp + i
                 if x < 0 or x >= w:
                     continue
                 left_step = _left_step(guide, y, x, step_spacing, step_weight)
-                cost = sparse_pair_cost(left[y, x], right_values[k], left_step, right_steps[k], truncation,
+                if fy != 0 or fx != 0:
+                    # The sample's true position is (y + fy, x + fx): I1 read there, bilinear.
+                    _bilinear_at(left, y + fy, x + fx, h, w, at)
+                    left_pixel = at
+                else:
+                    left_pixel = left[y, x]
+                cost = sparse_pair_cost(left_pixel, right_values[k], left_step, right_steps[k], truncation,
                                         step_weight, step_truncation, left_codes[y, x], right_codes[k],
                                         census_weight)
                 x0, tx = _hat(x * inv_cs, gx_n)
@@ -828,7 +856,7 @@ def _splat_lattice_rows(r_lo, r_hi, cell_lo, cell_hi, lattice, samples, pixels, 
     """
     sample_rows, offset_x, stride, n_cols = lattice
     grid_val, band_w, base_w, channel_of_residue = grids
-    right_values, right_steps, right_codes = samples
+    right_values, right_steps, right_codes, _ = samples
     left, guide, left_codes = pixels
     truncation, step_spacing, step_weight, step_truncation, census_weight, inv_cs, inv_cr = terms
     gy_n, gx_n, gz_n, num_disp = grid_val.shape
@@ -1078,7 +1106,8 @@ def sparse_joint_bilateral(guide: np.ndarray, rows: np.ndarray, cols: np.ndarray
 def filled_sparse_dsi(left: np.ndarray, guide: np.ndarray, rows: np.ndarray, cols: np.ndarray,
                       right_values: np.ndarray, *, min_disp: int, num_disp: int, scale: FillScale,
                       terms: SparseCostTerms, right_steps: np.ndarray | None = None,
-                      pixel_of_row: np.ndarray | None = None, right_codes: np.ndarray | None = None) -> np.ndarray:
+                      pixel_of_row: np.ndarray | None = None, right_codes: np.ndarray | None = None,
+                      right_offsets: np.ndarray | None = None) -> np.ndarray:
     """The paper's filled sparse DSI: Eq. (2) at the samples, spread by Eq. (3) to every pixel.
 
     Parameters
@@ -1108,6 +1137,9 @@ def filled_sparse_dsi(left: np.ndarray, guide: np.ndarray, rows: np.ndarray, col
         longer lie on one (a grid placed in a rectified frame); with
         ``terms.census_spacing`` they meet I1's census at that spacing.  Default: the
         codes of a regular grid sent row by row, or no census.
+    right_offsets : ndarray, float32 (n, 2), optional
+        ``(dy, dx)`` of each sample's true position from its pixel ``(row, col)`` (samples
+        placed off the pixel grid): Eq. (2)'s colour term reads I1 there, bilinear.
 
     Returns
     -------
@@ -1125,7 +1157,8 @@ def filled_sparse_dsi(left: np.ndarray, guide: np.ndarray, rows: np.ndarray, col
     ((20, 30, 4), dtype('float32'))
     """
     grids = sparse_dsi_grids(left, guide, rows, cols, right_values, min_disp=min_disp, num_disp=num_disp,
-                             scale=scale, terms=terms, right_steps=right_steps, right_codes=right_codes)
+                             scale=scale, terms=terms, right_steps=right_steps, right_codes=right_codes,
+                             right_offsets=right_offsets)
     volume = slice_volume(guide, grids, pixel_of_row=pixel_of_row)
     release_grids(grids)
     return volume
@@ -1163,7 +1196,7 @@ def _census_codes(guide, rows, cols, right_values, terms, right_codes=None):
 def sparse_dsi_grids(left: np.ndarray, guide: np.ndarray, rows: np.ndarray, cols: np.ndarray,
                      right_values: np.ndarray, *, min_disp: int, num_disp: int, scale: FillScale,
                      terms: SparseCostTerms, right_steps: np.ndarray | None = None,
-                     right_codes: np.ndarray | None = None) -> SliceGrids:
+                     right_codes: np.ndarray | None = None, right_offsets: np.ndarray | None = None) -> SliceGrids:
     """The splatted and blurred grids of :func:`filled_sparse_dsi`, not yet sliced.
 
     For callers that slice pixel by pixel inside their own kernel (:func:`slice_pixel`),
@@ -1184,10 +1217,12 @@ def sparse_dsi_grids(left: np.ndarray, guide: np.ndarray, rows: np.ndarray, cols
     if right_codes is None:
         right_codes, left_codes = np.full(len(rows), -1, np.int64), np.zeros((h, w), np.uint8)
         terms = replace(terms, census_weight=0.0)
+    offsets = (np.zeros((0, 2), np.float32) if right_offsets is None
+               else np.ascontiguousarray(right_offsets, np.float32).reshape(-1, 2))
     samples = RightSamples(np.ascontiguousarray(right_values, np.float32),
-                           np.ascontiguousarray(right_steps, np.float32), right_codes)
+                           np.ascontiguousarray(right_steps, np.float32), right_codes, offsets)
     stride = _lattice_stride(np.asarray(rows, np.int64), np.asarray(cols, np.int64), w) if min_disp >= 0 else 0
-    if stride and num_disp > stride:
+    if stride and num_disp > stride and right_offsets is None:
         return _lattice_sparse_dsi_grids(left, guide, rows, cols, samples, left_codes, stride=stride, geom=geom,
                                          min_disp=int(min_disp), num_disp=int(num_disp), terms=terms)
     grid_val = zeroed_volume(geom.shape + (num_disp,))

@@ -103,7 +103,8 @@ def _undistort(points, camera, distortion, rotation, projection):
     return out.reshape(-1, 2)
 
 
-def rectify_stereo(calibration: StereoCalibration, width: int, height: int) -> Rectification:
+def rectify_stereo(calibration: StereoCalibration, width: int, height: int, *,
+                   size: tuple | None = None) -> Rectification:
     """The rectification of a calibrated pair for ``width x height`` images.
 
     Parameters
@@ -111,6 +112,8 @@ def rectify_stereo(calibration: StereoCalibration, width: int, height: int) -> R
     calibration : StereoCalibration
     width, height : int
         Size of the images as the cameras give them.
+    size : (width, height), optional
+        Size of the rectified frame (default: the raw size).
 
     Returns
     -------
@@ -132,14 +135,15 @@ def rectify_stereo(calibration: StereoCalibration, width: int, height: int) -> R
         pos = _pixel_grid(width, height).astype(np.float32).reshape(height, width, 2)
         return Rectification(calibration=c, raw_size=(width, height), size=(width, height), R1=r1, R2=r1.copy(),
                              P1=p1, P2=p2, identity=True, left_map=None, left_positions=pos)
+    size = (width, height) if size is None else (int(size[0]), int(size[1]))
     r1, r2, p1, p2, _q, _roi1, _roi2 = cv2.stereoRectify(
         c.M1, c.D1, c.M2, c.D2, (width, height), c.R, c.T.reshape(3, 1),
-        flags=cv2.CALIB_ZERO_DISPARITY, alpha=1.0, newImageSize=(width, height))
+        flags=cv2.CALIB_ZERO_DISPARITY, alpha=1.0, newImageSize=size)
     if not (np.all(np.isfinite(p1)) and np.all(np.isfinite(p2))) or p1[0, 0] <= 0:
         raise CalibrationError("cv2.stereoRectify found no rectification for this calibration", path=c.source)
-    map_x, map_y = cv2.initUndistortRectifyMap(c.M1, c.D1, r1, p1, (width, height), cv2.CV_32FC1)
+    map_x, map_y = cv2.initUndistortRectifyMap(c.M1, c.D1, r1, p1, size, cv2.CV_32FC1)
     pos = _undistort(_pixel_grid(width, height), c.M1, c.D1, r1, p1).astype(np.float32).reshape(height, width, 2)
-    return Rectification(calibration=c, raw_size=(width, height), size=(width, height), R1=r1, R2=r2, P1=p1,
+    return Rectification(calibration=c, raw_size=(width, height), size=size, R1=r1, R2=r2, P1=p1,
                          P2=p2, identity=False, left_map=(map_x, map_y), left_positions=pos)
 
 
@@ -184,7 +188,7 @@ def rectify_left(image: np.ndarray, rectification: Rectification) -> np.ndarray:
     if rectification.identity:
         return image
     map_x, map_y = rectification.left_map
-    return cv2.remap(image, map_x, map_y, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=0)
+    return cv2.remap(image, map_x, map_y, cv2.INTER_CUBIC, borderMode=cv2.BORDER_CONSTANT, borderValue=0)
 
 
 @dataclass(frozen=True, eq=False)
@@ -216,13 +220,15 @@ class PlacedSamples(SampleSet):
     What :func:`rectify_samples` gives: the decoders read it like any irregular sample
     set (its pattern's kind is ``jitter``; its strides, the spacing the samples have in
     this frame, set the fill's scale).  Samples of a grid keep their lattice (``lattice``),
-    so the Sparse cost's steps and census still compare lattice neighbours.  It is not
-    written to a sample file.
+    so the Sparse cost's steps and census still compare lattice neighbours; ``offsets``
+    (float32 (n, 2), ``(dy, dx)``) says where each sample truly lies from its pixel, and
+    the Sparse cost reads I1 there.  It is not written to a sample file.
     """
 
     rows: np.ndarray | None = None
     cols: np.ndarray | None = None
     lattice: SampleLattice | None = None
+    offsets: np.ndarray | None = None
 
     def __post_init__(self):
         v = self.values
@@ -245,7 +251,7 @@ def map_sample_positions(samples: SampleSet, rectification: Rectification) -> np
     return _undistort(points, c.M2, c.D2, rectification.R2, rectification.P2)
 
 
-def rectify_samples(samples: SampleSet, rectification: Rectification) -> SampleSet:
+def rectify_samples(samples: SampleSet, rectification: Rectification, *, subpixel: bool = True) -> SampleSet:
     """The right camera's samples placed in the rectified right frame.
 
     Each sample goes to the pixel nearest its true rectified position; samples landing
@@ -257,6 +263,9 @@ def rectify_samples(samples: SampleSet, rectification: Rectification) -> SampleS
     samples : SampleSet
         What the right camera sent (its raw positions).
     rectification : Rectification
+    subpixel : bool
+        Keep each sample's offset from its pixel, so that the Sparse cost compares it
+        with I1 at its true position (else it is compared at the pixel).
 
     Returns
     -------
@@ -294,22 +303,47 @@ def rectify_samples(samples: SampleSet, rectification: Rectification) -> SampleS
     return PlacedSamples(height=height, width=width, channel_order=samples.channel_order, pattern=pattern,
                          values=np.ascontiguousarray(samples.values[keep]), codec=samples.codec,
                          value_bits=samples.value_bits, quality=samples.quality,
-                         rows=yr[keep].astype(np.int64), cols=xr[keep].astype(np.int64), lattice=lattice)
+                         rows=yr[keep].astype(np.int64), cols=xr[keep].astype(np.int64), lattice=lattice,
+                         offsets=np.stack([xy[keep, 1] - yr[keep], xy[keep, 0] - xr[keep]], axis=1).astype(np.float32)
+                         if subpixel else None)
 
 
-def _sample_nearest(image, positions):
-    """``image`` read at float positions (H, W, 2) (x, y), nearest pixel; NaN outside."""
+def _sample_smooth(image, positions, *, jump: float = 1.0):
+    """``image`` (H, W) read at float positions (H', W', 2) (x, y); NaN outside.
+
+    Bilinear where the four pixels around a position are valid and within ``jump`` of each
+    other; the nearest pixel elsewhere, so that a value is never blended across a depth
+    edge.
+    """
     h, w = image.shape[:2]
-    x = np.rint(positions[..., 0]).astype(np.int64)
-    y = np.rint(positions[..., 1]).astype(np.int64)
-    inside = (x >= 0) & (x < w) & (y >= 0) & (y < h)
+    x = positions[..., 0].astype(np.float64)
+    y = positions[..., 1].astype(np.float64)
+    xi = np.rint(x).astype(np.int64)
+    yi = np.rint(y).astype(np.int64)
+    inside = (xi >= 0) & (xi < w) & (yi >= 0) & (yi < h)
     out = np.full(positions.shape[:2], np.nan, dtype=np.float32)
-    out[inside] = image[y[inside], x[inside]]
+    out[inside] = image[yi[inside], xi[inside]]
+    x0 = np.floor(x).astype(np.int64)
+    y0 = np.floor(y).astype(np.int64)
+    ok = (x0 >= 0) & (x0 + 1 < w) & (y0 >= 0) & (y0 + 1 < h)
+    x0, y0, tx, ty = x0[ok], y0[ok], (x - np.floor(x))[ok], (y - np.floor(y))[ok]
+    a, b = image[y0, x0].astype(np.float64), image[y0, x0 + 1].astype(np.float64)
+    c, d = image[y0 + 1, x0].astype(np.float64), image[y0 + 1, x0 + 1].astype(np.float64)
+    with np.errstate(invalid="ignore"):
+        corners = np.stack([a, b, c, d])
+        smooth = np.all(np.isfinite(corners), axis=0) & (corners.max(axis=0) - corners.min(axis=0) <= jump)
+        blend = (a * (1 - tx) + b * tx) * (1 - ty) + (c * (1 - tx) + d * tx) * ty
+    values = out[ok]
+    values[smooth] = blend[smooth]
+    out[ok] = values
     return out
 
 
 def raw_left_disparity(disparity: np.ndarray, rectification: Rectification) -> np.ndarray:
-    """The rectified disparity read at each raw left pixel's rectified position (nearest pixel).
+    """The rectified disparity read at each raw left pixel's rectified position.
+
+    Bilinear inside smooth surfaces, the nearest pixel where the four neighbours differ
+    by more than 1 px or one is invalid (never a blend across a depth edge).
 
     Parameters
     ----------
@@ -324,7 +358,7 @@ def raw_left_disparity(disparity: np.ndarray, rectification: Rectification) -> n
     """
     if rectification.identity:
         return disparity
-    return _sample_nearest(disparity, rectification.left_positions)
+    return _sample_smooth(disparity, rectification.left_positions)
 
 
 def _rectified_points(disparity, rectification, positions):

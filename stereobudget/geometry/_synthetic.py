@@ -35,6 +35,8 @@ class UnrectifiedPair:
     scored : ndarray, bool (H, W)
         Raw left pixels with ground truth (and inside the rectified image, and selected
         by the rectified pair's mask).
+    right_rotation : ndarray (3, 3)
+        ``Q_2``, the right camera's turn.
     """
 
     left: np.ndarray
@@ -43,6 +45,31 @@ class UnrectifiedPair:
     left_in_rectified: np.ndarray
     true_right: np.ndarray
     scored: np.ndarray
+    right_rotation: np.ndarray
+
+    def implied_by_rectified(self, disparity: np.ndarray) -> np.ndarray:
+        """The raw right position (H, W, 2) each raw left pixel gets from a disparity of the original rectified pair.
+
+        What :func:`stereobudget.geometry.raw_right_positions` gives for a result in a
+        host-rectified frame, for a decode of the rectified pair: both are then scored on
+        the raw left image alike.
+        """
+        import cv2
+
+        from ._rectify import _sample_smooth
+        c = self.calibration
+        k = c.M1
+        d = _sample_smooth(disparity, self.left_in_rectified).astype(np.float64)
+        xr = self.left_in_rectified[..., 0] - d
+        yr = self.left_in_rectified[..., 1]
+        rays = np.stack([(xr - k[0, 2]) / k[0, 0], (yr - k[1, 2]) / k[1, 1], np.ones_like(xr)], axis=-1)
+        valid = np.isfinite(rays).all(axis=-1)
+        out = np.full(xr.shape + (2,), np.nan)
+        if valid.any():
+            projected, _ = cv2.projectPoints(rays[valid].reshape(-1, 1, 3), cv2.Rodrigues(self.right_rotation)[0],
+                                             np.zeros(3), c.M2, c.D2)
+            out[valid] = projected.reshape(-1, 2)
+        return out
 
 
 def _rectified_positions(width, height, k, distortion, rotation):
@@ -101,17 +128,19 @@ def unrectify_pair(left: np.ndarray, right: np.ndarray, disparity: np.ndarray, *
 
     def warp(image, pos):
         maps = pos.astype(np.float32)
-        return cv2.remap(image, maps[..., 0], maps[..., 1], cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT,
+        return cv2.remap(image, maps[..., 0], maps[..., 1], cv2.INTER_LANCZOS4, borderMode=cv2.BORDER_CONSTANT,
                          borderValue=0)
 
     raw_left, raw_right = warp(left, pos1), warp(right, pos2)
-    # Ground truth at each raw left pixel's rectified position (nearest pixel: disparities
-    # are not interpolated across depth edges).
+    # Ground truth at each raw left pixel's rectified position: bilinear on smooth
+    # surfaces, the nearest pixel across depth edges.
+    from ._rectify import _sample_smooth
     xi = np.rint(pos1[..., 0]).astype(np.int64)
     yi = np.rint(pos1[..., 1]).astype(np.int64)
     inside = (pos1[..., 0] >= 0) & (pos1[..., 0] <= width - 1) & (pos1[..., 1] >= 0) & (pos1[..., 1] <= height - 1)
-    d = np.full((height, width), np.nan)
-    d[inside] = disparity[yi[inside], xi[inside]]
+    truth = np.where(np.asarray(disparity) > 0, disparity, np.nan).astype(np.float64)
+    d = _sample_smooth(truth, pos1).astype(np.float64)
+    d[~inside] = np.nan
     scored = inside & np.isfinite(d) & (d > 0)
     if mask is not None:
         scored[inside] &= mask[yi[inside], xi[inside]]
@@ -127,7 +156,7 @@ def unrectify_pair(left: np.ndarray, right: np.ndarray, disparity: np.ndarray, *
                                     T=-q2 @ np.array([baseline, 0.0, 0.0]), image_size=(width, height),
                                     source="<synthetic>")
     return UnrectifiedPair(left=raw_left, right=raw_right, calibration=calibration, left_in_rectified=pos1,
-                           true_right=true_right, scored=scored)
+                           true_right=true_right, scored=scored, right_rotation=q2)
 
 
 def write_calibration(path, calibration: StereoCalibration) -> None:
