@@ -47,9 +47,10 @@ import numpy as np
 
 import stereobudget
 from stereobudget.batch import DecodeJob, decode_file
-from stereobudget.decoding import DecoderParams
+from stereobudget.decoding import DecoderParams, resolve_range
+from stereobudget.errors import CalibrationError
 from stereobudget.geometry import (raw_right_positions, rectification_for, rectify_left, rectify_samples,
-                                   unrectify_pair, write_calibration)
+                                   self_rectification, unrectify_pair, write_calibration)
 from stereobudget.io import encode_file, load_samples, read_disparity, read_image, write_image
 from stereobudget.sampling import SamplingPattern
 
@@ -139,6 +140,22 @@ def run_scene(folder: Path, configs, work: Path, seed: int, variants=()) -> list
             left_r = rectify_left(read_image(str(work / "raw_left.png"))[0], rect)
             raw_samples = load_samples(samples_raw)
             for name in variants:
+                if name == "self":
+                    # --calibration auto as sb-decode does it: the geometry from I1 and the grid
+                    # alone, then the range estimated in the frame it gives.
+                    raw_left = read_image(str(work / "raw_left.png"))[0]
+                    try:
+                        auto, report = self_rectification(raw_left, raw_samples)
+                    except CalibrationError as exc:
+                        row["self"], row["self_note"] = math.nan, str(exc).split(": ", 1)[-1][:60]
+                        continue
+                    left_a, placed = rectify_left(raw_left, auto), rectify_samples(raw_samples, auto)
+                    lo_a, hi_a, _ = resolve_range(left_a, placed)
+                    result = stereobudget.decode(left_a, placed, max_disp=hi_a, min_disp=lo_a)
+                    row["self"] = bad_raw(raw_right_positions(result.disparity, auto), pair)
+                    row["self_note"] = (f"{report.matches} matches, residual {report.residual_median:.2f} px "
+                                        f"(p90 {report.residual_p90:.2f})")
+                    continue
                 placed = rectify_samples(raw_samples, rect, subpixel=name != "nearest")
                 params = DecoderParams(sparse_census_weight=0.0) if name == "no_census" else None
                 result = stereobudget.decode(left_r, placed, max_disp=hi_c, min_disp=lo_c, params=params)
@@ -158,8 +175,8 @@ def main(argv=None):
     parser.add_argument("--scenes", default="", help="comma-separated scene names (default: all of realdev)")
     parser.add_argument("--configs", default="eps4,s5", help="eps4 (--epsilon 0.04) and/or s5 (raw stride 5)")
     parser.add_argument("--seed", type=int, default=50, help="base seed of the camera turns")
-    parser.add_argument("--variants", default="", help="extra calibrated columns: nearest (positions rounded, "
-                        "no sub-pixel offsets), no_census (Sparse census off)")
+    parser.add_argument("--variants", default="", help="extra columns: self (--calibration auto), nearest "
+                        "(positions rounded, no sub-pixel offsets), no_census (Sparse census off)")
     args = parser.parse_args(argv)
     root = SHARED / "realdev"
     if not root.is_dir():
@@ -182,6 +199,8 @@ def main(argv=None):
             rows += scene_rows
             for row in scene_rows:
                 extra = "".join(f"  {v} {row[v]:6.2f}" for v in variants)
+                if "self_note" in row:
+                    extra += f" [{row['self_note']}]"
                 print(f"{row['scene']:16s} {row['config']:5s} stride {row['stride']}/{row['raw_stride']}  "
                       f"rectified {row['rectified']:6.2f} (on raw {row['rectified_raw']:6.2f})  calibrated "
                       f"{row['calibrated']:6.2f}{extra}  ranges {row['range']} {row['range_cal']}  placed "
@@ -200,7 +219,8 @@ def main(argv=None):
         sel = [r for r in rows if r["config"] == config]
         if not sel:
             continue
-        extra = "".join(f" {np.mean([r[v] for r in sel]):.2f} |" for v in variants)
+        extra = "".join(f" {np.nanmean([r[v] for r in sel]):.2f} ({int(np.sum(np.isnan([r[v] for r in sel])))} "
+                        f"refused) |" if v == "self" else f" {np.mean([r[v] for r in sel]):.2f} |" for v in variants)
         print(f"| **mean ({len(sel)})** | {config} | | {np.mean([r['rectified'] for r in sel]):.2f} | "
               f"{np.mean([r['rectified_raw'] for r in sel]):.2f} | {np.mean([r['calibrated'] for r in sel]):.2f} |{extra}")
     for config in configs:

@@ -172,7 +172,7 @@ rectification_for.cache_clear = _cached.cache_clear
 
 
 def rectify_left(image: np.ndarray, rectification: Rectification) -> np.ndarray:
-    """I1 resampled into the rectified left frame (bilinear; outside the raw image: 0).
+    """I1 resampled into the rectified left frame (bicubic; outside the raw image: 0).
 
     Parameters
     ----------
@@ -275,7 +275,8 @@ def rectify_samples(samples: SampleSet, rectification: Rectification, *, subpixe
         return samples
     if samples.mosaic or samples.pattern.kind == "downsample":
         raise CalibrationError(f"host rectification needs pixel samples, not {samples.channel_order} "
-                               f"{samples.pattern.kind} samples", path=rectification.calibration.source)
+                               f"{samples.pattern.kind} samples",
+                               path=rectification.calibration.source)
     width, height = rectification.size
     xy = map_sample_positions(samples, rectification)
     xr, yr = np.rint(xy[:, 0]), np.rint(xy[:, 1])

@@ -16,7 +16,8 @@ from click.testing import CliRunner
 from stereobudget.batch import decode_stream
 from stereobudget.cli.decode import decode_command
 from stereobudget.errors import CalibrationError, OptionError, OutputError
-from stereobudget.geometry import (depth_map, raw_points, raw_right_positions, read_calibration, read_depth,
+from stereobudget.geometry import (depth_map, raw_left_disparity, raw_points, raw_right_positions, read_calibration,
+                                   read_depth,
                                    rectification_for, rectify_stereo, unrectify_pair, write_calibration)
 from stereobudget.io import encode_image, read_disparity, save_samples, write_image
 from stereobudget.sampling import SamplingPattern
@@ -180,14 +181,19 @@ def test_frame_raw_resamples_the_disparity_to_the_left_image(unrectified):
     assert result.exit_code == 0, result.stderr
     assert json.loads(result.stdout)["frame"]["disparity"] == "raw"
     rect = rectification_for(folder / "stereo.yml", 320, 240)
-    rectified = read_disparity(folder / "cal.pfm") if (folder / "cal.pfm").exists() else None
+    result = invoke(folder / "left.png", folder / "right.sbs", "--calibration", folder / "stereo.yml",
+                    "--disparity", folder / "rectified_frame.pfm", "--overwrite")
+    assert result.exit_code == 0, result.stderr
+    rectified = read_disparity(folder / "rectified_frame.pfm")
     raw = read_disparity(folder / "raw_frame.pfm")
     assert raw.shape == (240, 320)
-    if rectified is not None:
-        x = np.rint(rect.left_positions[..., 0]).astype(int)
-        y = np.rint(rect.left_positions[..., 1]).astype(int)
-        ok = (x >= 0) & (x < 320) & (y >= 0) & (y < 240)
-        np.testing.assert_array_equal(raw[ok], rectified[y[ok], x[ok]])
+    np.testing.assert_array_equal(raw, raw_left_disparity(rectified, rect))
+    # Each raw pixel reads the rectified map at its rectified position: the nearest pixel's value
+    # where the surface jumps, and within the four neighbours' values elsewhere.
+    x = np.rint(rect.left_positions[..., 0]).astype(int).clip(0, 319)
+    y = np.rint(rect.left_positions[..., 1]).astype(int).clip(0, 239)
+    ok = np.isfinite(raw)
+    assert np.all(np.abs(raw[ok] - rectified[y[ok], x[ok]]) <= 1.0 + 1e-6)
 
 
 def test_a_stream_computes_the_maps_once(unrectified, tmp_path):
