@@ -30,6 +30,8 @@ The library is grouped by topic; each subpackage re-exports its public names:
 - :mod:`stereobudget.synthesis` — the right image recovered from I1 and the disparity:
   **the warp for Î2** (:func:`stereobudget.synthesis.warp_left_to_right`), then the samples
   fill the holes (:func:`stereobudget.synthesis.recover_right`).
+- :mod:`stereobudget.geometry` — real camera pairs: calibration files, rectification at the
+  host (the samples placed where they land), depth in metres and PLY point clouds.
 - :mod:`stereobudget.batch` — many inputs in one run; :mod:`stereobudget.cli` — the
   ``sb-encode`` / ``sb-decode`` commands; :mod:`stereobudget.scenes` — synthetic scenes
   with exact ground truth.
