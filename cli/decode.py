@@ -20,7 +20,8 @@ from . import _common as common
 
 log = logging.getLogger("stereobudget")
 
-_OUTPUT_OPTIONS = (("disparity", "--disparity"), ("preview", "--preview"), ("right", "--right"))
+_OUTPUT_OPTIONS = (("disparity", "--disparity"), ("preview", "--preview"), ("right", "--right"),
+                   ("depth", "--depth"), ("points", "--points"))
 
 
 class _MaxDisp(click.ParamType):
@@ -167,6 +168,19 @@ def _decode_stream(left, samples, templates: dict, *, as_json: bool, **options) 
 @click.option("--no-enhance", is_flag=True, default=False,
               help="--right without the correction of the warp by the samples (faster; the samples are "
                    "still written back at their pixels).")
+@click.option("--calibration", metavar="FILE", default=None,
+              help="Stereo calibration of the two cameras (OpenCV YAML/XML with M1 D1 M2 D2 R T, the same "
+                   "in JSON, or Middlebury calib.txt): the pair is rectified at the host and decoded in the "
+                   "rectified left frame.  Needed by --depth and --points.")
+@click.option("--depth", metavar="OUT", default=None,
+              help="Depth in metres along the left camera's axis, for each pixel of LEFT as given: .tif/.pfm/"
+                   ".npy float32 (NaN, PFM +inf = invalid) or .png 16-bit millimetres (0 = invalid).")
+@click.option("--points", metavar="OUT.ply", default=None,
+              help="Point cloud: binary PLY, x y z float32 in metres in the left camera's coordinates (x right, "
+                   "y down, z forward) + red green blue; invalid pixels left out.")
+@click.option("--frame", type=click.Choice(("rectified", "raw")), default=None,
+              help="With --calibration: the pixel grid of --disparity, --preview and --depth: the rectified "
+                   "left frame, or LEFT as given.  [default: disparity and preview rectified, depth raw]")
 @click.option("--max-memory", metavar="SIZE", default=None,
               help="Refuse a pair whose decode would need more memory than SIZE (e.g. 8G, 500M).  "
                    "[default: 75 % of the available memory, or $STEREOBUDGET_MAX_MEMORY]")
@@ -177,8 +191,8 @@ def _decode_stream(left, samples, templates: dict, *, as_json: bool, **options) 
 @common.version_option
 @common.handle_errors
 def decode_command(inputs, left_dir, samples_dir, manifest, max_disp, min_disp, method, disparity,
-                   disparity_format, preview, right, warp_mode, no_enhance, max_memory, jobs, scheduler, overwrite,
-                   as_json):
+                   disparity_format, preview, right, warp_mode, no_enhance, calibration, depth, points, frame,
+                   max_memory, jobs, scheduler, overwrite, as_json):
     """Recover the disparity of LEFT from the right camera's SAMPLES (.sbs).
 
     One of LEFT and SAMPLES may be '-' (standard input).  LEFT and SAMPLES may also be
@@ -190,8 +204,8 @@ def decode_command(inputs, left_dir, samples_dir, manifest, max_disp, min_disp, 
     it), any other is redone; --overwrite redoes everything.  Exit status 1 if any
     pair failed.
 
-    The pair must be rectified (a scene point on the same row in both images) and LEFT
-    is the left camera's image.  Warnings (stderr, and "warnings" in --json) say when
+    The pair must be rectified (a scene point on the same row in both images), or its
+    calibration given with --calibration, and LEFT is the left camera's image.  Warnings (stderr, and "warnings" in --json) say when
     many pixels sit at the range limits, when the result does not reproduce the
     samples, and when the pair looks swapped or not rectified.
 
@@ -208,6 +222,7 @@ def decode_command(inputs, left_dir, samples_dir, manifest, max_disp, min_disp, 
       sb-decode left.png right.sbs --max-disp 60 --disparity d.tif --right r.png --json
       sb-decode left.png right.sbs --disparity - --format png > d.png
       ssh cam sb-encode - -o - < r.png | sb-decode left.png - --max-disp 60 --disparity d.pfm
+      sb-decode left.png right.sbs --calibration stereo.yml --depth z.tif --points cloud.ply
       sb-decode --left-dir L --samples-dir S --max-disp 60 \\
           --disparity 'D/{stem}.pfm' --right 'R/{stem}.png' -j 2
       sb-decode --manifest pairs.csv --max-disp 60 --disparity 'D/{stem}.pfm' --scheduler local
@@ -224,14 +239,16 @@ def decode_command(inputs, left_dir, samples_dir, manifest, max_disp, min_disp, 
         except ValueError as exc:
             raise OptionError(f"--max-memory: {exc}") from None
     templates = {name: value for name, value in (("disparity", disparity), ("preview", preview),
-                                                  ("right", right)) if value is not None}
+                                                  ("right", right), ("depth", depth), ("points", points))
+                 if value is not None}
     # The settings of stereobudget.synthesis.SynthesisParams that differ from its defaults.
     synthesis = {key: value for key, value in (("warp_mode", warp_mode), ("enhance", False if no_enhance else None))
                  if value is not None} or None
     if synthesis and right is None:
         raise OptionError("--warp and --no-enhance set how --right is recovered; give --right")
     if not templates:
-        raise OptionError("nothing to write: give --disparity, --preview and/or --right")
+        raise OptionError("nothing to write: give --disparity, --preview, --right, --depth and/or --points")
+    geometry = dict(calibration=calibration, frame=frame)
     if _is_stream(inputs, left_dir, samples_dir, manifest, templates):
         if scheduler is not None:
             raise OptionError("a stream is decoded in order, in one process: --scheduler applies to "
@@ -244,7 +261,7 @@ def decode_command(inputs, left_dir, samples_dir, manifest, max_disp, min_disp, 
         _decode_stream(inputs[0], inputs[1], templates, max_disp=max_disp, min_disp=min_disp, method=method,
                        synthesis=synthesis,
                        overwrite=overwrite, max_memory=max_memory, disparity_format=disparity_format,
-                       as_json=as_json)
+                       as_json=as_json, **geometry)
         return
     templated = {name: has_template(value, f"--{name}") for name, value in templates.items()}
     pairs = _pairs_from_arguments(inputs, left_dir, samples_dir, manifest)
@@ -277,7 +294,7 @@ def decode_command(inputs, left_dir, samples_dir, manifest, max_disp, min_disp, 
             left=pair.left, samples=pair.samples, max_disp=pair_max,
             min_disp=pair.min_disp if pair.min_disp is not None else min_disp, method=method,
             overwrite=overwrite, batch=batch, problem=pair.problem, max_memory=max_memory,
-            disparity_format=disparity_format, synthesis=synthesis, **outputs))
+            disparity_format=disparity_format, synthesis=synthesis, **geometry, **outputs))
     if not batch:
         job = job_list[0]
         try:

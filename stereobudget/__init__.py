@@ -39,6 +39,8 @@ The library is grouped by topic; each subpackage re-exports its public names:
 - :mod:`stereobudget.pipeline` — one pair, one file, one frame: the encode and decode paths
   (outputs checked, inputs read, decode, Î2, checks, atomic writes) that the commands, the
   batch items and the frame streams all call.
+- :mod:`stereobudget.geometry` — real camera pairs: calibration files, rectification at the
+  host (the samples placed where they land), depth in metres and PLY point clouds.
 - :mod:`stereobudget.batch` — many inputs in one run; :mod:`stereobudget.cli` — the
   ``sb-encode`` / ``sb-decode`` commands (the repository's ``cli/`` folder);
   :mod:`stereobudget.scenes` — synthetic scenes with exact ground truth.

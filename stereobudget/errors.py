@@ -92,6 +92,12 @@ class OutputError(StereoBudgetError):
     exit_code = 12
 
 
+class CalibrationError(StereoBudgetError):
+    """A calibration file cannot be used: unreadable, malformed, inconsistent, or for another camera pair or image size."""
+
+    exit_code = 13
+
+
 EXIT_OK = 0
 EXIT_FAILURES = 1          # batch finished but at least one file failed; or an unexpected error
 EXIT_INTERRUPTED = 130     # SIGINT / SIGTERM

@@ -127,12 +127,13 @@ def _decode_recipe(job: DecodeJob) -> dict:
         "method": job.method or DEFAULT_METHOD,
         "max_disp": "auto" if is_auto(job.max_disp) else int(job.max_disp),
         "min_disp": job.min_disp, "params": asdict(DecoderParams()),
-        "outputs": sorted(job.outputs), "disparity_format": job.disparity_format}
+        "outputs": sorted(job.outputs), "disparity_format": job.disparity_format,
+        "calibration": job.calibration is not None, "frame": job.frame}
     if job.right is not None:
         # A change of how Î2 is made (an option, or a default of a new version) redoes it.
         from ..synthesis._recover import SynthesisParams
         options["synthesis"] = asdict(SynthesisParams(**(job.synthesis or {})))
-    return make_recipe("sb-decode", [job.left, job.samples], options)
+    return make_recipe("sb-decode", [job.left, job.samples, job.calibration], options)
 
 
 def decode_job(job: DecodeJob) -> dict:

@@ -176,7 +176,9 @@ class _LeftFrames:
 def decode_stream(left: str, samples: str, *, disparity: str | None = None, preview: str | None = None,
                   right: str | None = None, max_disp=None, min_disp: int | None = None,
                   method: str | None = None, overwrite: bool = False, max_memory: int | None = None,
-                  disparity_format: str | None = None, synthesis: dict | None = None) -> Iterator[dict]:
+                  disparity_format: str | None = None, synthesis: dict | None = None, depth: str | None = None,
+                  points: str | None = None, calibration: str | None = None,
+                  frame: str | None = None) -> Iterator[dict]:
     """Decode every frame of a stream of ``.sbs`` frames in this process; yield a summary per frame.
 
     Parameters
@@ -196,6 +198,9 @@ def decode_stream(left: str, samples: str, *, disparity: str | None = None, prev
     max_disp, min_disp, method, overwrite, max_memory, disparity_format, synthesis
         As in :class:`~stereobudget.pipeline.DecodeJob`; ``max_disp="auto"`` estimates the
         range of every frame on its own.
+    depth, points, calibration, frame
+        As in :class:`~stereobudget.pipeline.DecodeJob`; the calibration is read and its
+        rectification maps computed for the first frame, then reused.
 
     Yields
     ------
@@ -209,7 +214,7 @@ def decode_stream(left: str, samples: str, *, disparity: str | None = None, prev
     """
     from ..io._samples import read_samples
 
-    templates = {"disparity": disparity, "preview": preview, "right": right}
+    templates = {"disparity": disparity, "preview": preview, "right": right, "depth": depth, "points": points}
     lefts = _LeftFrames(left)
     stream_name = display_name(samples)
     inputs = [samples] if samples != STDIO else []
@@ -219,10 +224,11 @@ def decode_stream(left: str, samples: str, *, disparity: str | None = None, prev
     # output open, folders there, names that fit), as for a single pair.
     first = {kind: _frame_output(value, source=lefts.path(0), index=0, option=f"--{kind}")
              for kind, value in templates.items()}
-    check_job_outputs(DecodeJob(left=lefts.path(0), samples=stream_name, **first))
+    check_job_outputs(DecodeJob(left=lefts.path(0), samples=stream_name, calibration=calibration, frame=frame,
+                                **first))
     prepare_outputs([path for path in first.values() if path is not None], [lefts.path(0), *inputs],
-                     overwrite=overwrite, make_dirs=True, replace_existing=False)
-    for index, frame in enumerate(sample_frames(samples)):
+                    overwrite=overwrite, make_dirs=True, replace_existing=False)
+    for index, frame_bytes in enumerate(sample_frames(samples)):
         start = time.perf_counter()
         label = frame_label(stream_name, index) if index else stream_name
         left_path = lefts.path(index)
@@ -239,13 +245,14 @@ def decode_stream(left: str, samples: str, *, disparity: str | None = None, prev
             written[key] = index
         job = DecodeJob(left=left_path, samples=label, method=method, max_disp=max_disp, min_disp=min_disp,
                         overwrite=overwrite, max_memory=max_memory, disparity_format=disparity_format,
-                        synthesis=synthesis, **outputs)
+                        synthesis=synthesis, calibration=calibration, frame=frame, **outputs)
         check_job_outputs(job)
-        replace = prepare_outputs(list(job.outputs.values()), [left_path, *inputs], overwrite=overwrite,
+        replace = prepare_outputs(list(job.outputs.values()),
+                                  [left_path, *inputs, *([calibration] if calibration else [])], overwrite=overwrite,
                                    make_dirs=True, replace_existing=False)
         t = time.perf_counter()
         left_path, left_image = lefts.read(index)
-        sample_set = read_samples(frame, source=label)
+        sample_set = read_samples(frame_bytes, source=label)
         timings = {"read": time.perf_counter() - t}
         summary = decode_arrays(left_image, sample_set, job, left_name=display_name(left_path),
                                 samples_name=label, overwrite=replace, timings=timings, start=start,

@@ -70,6 +70,7 @@ class RightSamples(NamedTuple):
     values: np.ndarray  # float32 (K, C), 8-bit units
     steps: np.ndarray   # float32 (K,), difference to the next sample of the row (NaN: none)
     codes: np.ndarray   # int64 (K,), lattice census code (-1: no census term)
+    offsets: np.ndarray  # float32 (K, 2) or (0, 2): (dy, dx) of the true position from (row, col)
 
 
 class LeftPixels(NamedTuple):
@@ -100,6 +101,32 @@ def left_terms(pixels, y, x, terms):
 
 
 @njit(cache=True, inline="always")
+def bilinear_at(image, y, x, h, w, out):
+    """``image`` (H, W, C) at the real position (y, x), bilinear, clamped to the image; into ``out`` (C,)."""
+    y = min(max(y, 0.0), h - 1.0)
+    x = min(max(x, 0.0), w - 1.0)
+    y0 = min(int(y), h - 2) if h > 1 else 0
+    x0 = min(int(x), w - 2) if w > 1 else 0
+    ty = y - y0
+    tx = x - x0
+    y1 = min(y0 + 1, h - 1)
+    x1 = min(x0 + 1, w - 1)
+    for c in range(out.shape[0]):
+        top = image[y0, x0, c] * (1 - tx) + image[y0, x1, c] * tx
+        bottom = image[y1, x0, c] * (1 - tx) + image[y1, x1, c] * tx
+        out[c] = top * (1 - ty) + bottom * ty
+
+
+@njit(cache=True, inline="always")
+def left_terms_at(pixels, y, x, dy, dx, terms, out):
+    """:func:`left_terms` for a sample whose true position is ``(y + dy, x + dx)`` (a sample placed
+    off the pixel grid): I1's colour read there, bilinear, into ``out`` (C,); the step and the
+    census code stay those of pixel (y, x)."""
+    bilinear_at(pixels.image, y + dy, x + dx, pixels.image.shape[0], pixels.image.shape[1], out)
+    return out, left_step(pixels.guide, y, x, terms.step_spacing, terms.step_weight), pixels.codes[y, x]
+
+
+@njit(cache=True, inline="always")
 def sample_cost(at_left, samples, k, terms):
     """Eq. (2) between a left pixel (:func:`left_terms`) and right sample ``k`` of ``samples``
     (:class:`RightSamples`) with ``terms`` (:class:`SparseTerms`)."""
@@ -110,4 +137,4 @@ def sample_cost(at_left, samples, k, terms):
 
 
 __all__ = ["SparseCostTerms", "SparseTerms", "RightSamples", "LeftPixels", "left_step", "left_terms",
-           "sample_cost"]
+           "left_terms_at", "bilinear_at", "sample_cost"]

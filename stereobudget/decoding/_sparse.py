@@ -4,8 +4,11 @@ sub-pixel refinement -> 3x3 median.  The fill's arguments are shared with Hybrid
 
 from __future__ import annotations
 
+import numpy as np
+
 from ..aggregate import _mst, _tree
 from ..aggregate._refine import median_filter_disparity
+from ..cost._census import lattice_census
 from ..cost._cost import sample_row_steps, to_gray
 from ..cost._sparse import SparseCostTerms
 from ..fill._bilateral import FillScale, filled_sparse_dsi
@@ -21,19 +24,37 @@ def sparse_fill_arguments(left_f, guide, samples, params):
     rows, cols = samples.positions()
     values = _sample_values_f32(samples)
     steps = None
+    codes = None
+    # A grid placed off its lattice (rectified at the host) keeps its lattice neighbours:
+    # its steps and census come from the lattice, I1's at the spacing the grid has where it landed.
+    placed = getattr(samples, "lattice", None)
     if samples.pattern.is_regular_grid and params.step_weight > 0:
         # Row neighbours of a grid are stride_x pixels apart: their difference is exact data.
         lattice = to_gray(values.reshape(grid_shape(samples.pattern, samples.height, samples.width) + (-1,)))
         steps = sample_row_steps(lattice).ravel()
+    elif placed is not None:
+        lattice = to_gray(np.asarray(placed.values, np.float32).reshape(placed.shape + (-1,)))
+        if params.step_weight > 0:
+            steps = sample_row_steps(lattice).ravel()[placed.index]
+        if params.sparse_census_weight > 0:
+            codes = lattice_census(lattice)[placed.index]
     scale = FillScale(sigma_s=params.sigma_s_per_stride * sampling_stride(samples), sigma_r=params.sigma_r,
                       cells_per_sigma_s=params.grid_cells_per_sigma_s,
                       cells_per_sigma_r=params.grid_cells_per_sigma_r)
     grid = samples.pattern.is_regular_grid
+    spacing = (samples.pattern.stride_x, samples.pattern.stride_y) if grid else (
+        tuple(placed.spacing) if placed is not None else None)
     terms = SparseCostTerms(truncation=params.truncation, step_weight=params.step_weight,
-                            step_truncation=params.step_truncation, step_spacing=samples.pattern.stride_x,
-                            census_weight=params.sparse_census_weight,
-                            census_spacing=(samples.pattern.stride_x, samples.pattern.stride_y) if grid else None)
-    return (left_f, guide, rows, cols, values), dict(scale=scale, terms=terms, right_steps=steps)
+                            step_truncation=params.step_truncation,
+                            step_spacing=spacing[0] if spacing else samples.pattern.stride_x,
+                            census_weight=params.sparse_census_weight, census_spacing=spacing)
+    kwargs = dict(scale=scale, terms=terms, right_steps=steps)
+    if codes is not None:
+        kwargs["right_codes"] = codes
+    offsets = getattr(samples, "offsets", None)
+    if offsets is not None:
+        kwargs["right_offsets"] = offsets
+    return (left_f, guide, rows, cols, values), kwargs
 
 
 def sparse_filled_cost(left_f, guide, samples, *, min_disp, num_disp, params, layout=None):

@@ -16,7 +16,7 @@ import numpy as np
 from numba import get_num_threads, njit, prange
 
 from .._kernels._scratch import empty_volume, zeroed_volume
-from ..cost._sparse import LeftPixels, RightSamples, SparseCostTerms, left_terms, sample_cost
+from ..cost._sparse import LeftPixels, RightSamples, SparseCostTerms, left_terms, left_terms_at, sample_cost
 from ._geometry import GridGeometry, grid_geometry
 from ._grid import (SliceGrids, _blur_base_grid, _blur_grid, _corner_weights, _gaussian_kernel, _hat, _slice_grids,
                     release_grids, slice_volume)
@@ -148,6 +148,8 @@ def _splat_sparse_dsi_split(rows, cols, samples, pixels, min_disp, cost_terms, s
     inv_cs, inv_cr = scales
     gy_n, gx_n, gz_n, num_disp = grid_val.shape
     w = guide.shape[1]
+    # Samples placed off the pixel grid (a grid rectified at the host) carry their offsets.
+    subpixel = samples.offsets.shape[0] == rows.shape[0]
     blocks = max(1, min(blocks, num_disp))
     band_n = band_w.shape[1]
     values_flat = grid_val.reshape(grid_val.size)
@@ -157,14 +159,21 @@ def _splat_sparse_dsi_split(rows, cols, samples, pixels, min_disp, cost_terms, s
         weights = np.empty(8, dtype=np.float64)
         offsets = np.empty(8, dtype=np.uint64)
         band_offsets = np.empty(8, dtype=np.int64)
+        at = np.empty(pixels.image.shape[2], dtype=np.float32)
         for k in range(rows.shape[0]):
             y = rows[k]
             y0, ty = _hat(y * inv_cs, gy_n)
+            fy = samples.offsets[k, 0] if subpixel else np.float32(0.0)
+            fx = samples.offsets[k, 1] if subpixel else np.float32(0.0)
             for i in range(first, last):
                 x = cols[k] + min_disp + i
                 if x < 0 or x >= w:
                     continue
-                cost = sample_cost(left_terms(pixels, y, x, cost_terms), samples, k, cost_terms)
+                if fy != 0 or fx != 0:
+                    at_left = left_terms_at(pixels, y, x, fy, fx, cost_terms, at)
+                else:
+                    at_left = left_terms(pixels, y, x, cost_terms)
+                cost = sample_cost(at_left, samples, k, cost_terms)
                 x0, tx = _hat(x * inv_cs, gx_n)
                 z0, tz = _hat(guide[y, x] * inv_cr, gz_n)
                 _corner_weights(ty, tx, tz, weights)
@@ -399,7 +408,8 @@ def _lattice_sparse_dsi_grids(left, guide, rows, cols, samples, left_codes, *, s
 def filled_sparse_dsi(left: np.ndarray, guide: np.ndarray, rows: np.ndarray, cols: np.ndarray,
                       right_values: np.ndarray, *, min_disp: int, num_disp: int, scale: FillScale,
                       terms: SparseCostTerms, right_steps: np.ndarray | None = None,
-                      pixel_of_row: np.ndarray | None = None) -> np.ndarray:
+                      pixel_of_row: np.ndarray | None = None, right_codes: np.ndarray | None = None,
+                      right_offsets: np.ndarray | None = None) -> np.ndarray:
     """The paper's filled sparse DSI: Eq. (2) at the samples, spread by Eq. (3) to every pixel.
 
     Parameters
@@ -424,6 +434,14 @@ def filled_sparse_dsi(left: np.ndarray, guide: np.ndarray, rows: np.ndarray, col
     pixel_of_row : ndarray of int (H * W,), optional
         Row ``k`` of an ``(H * W, num_disp)`` result holds pixel ``pixel_of_row[k]``
         (row-major), e.g. a tree's depth-first order (:class:`stereobudget.aggregate.TreeLayout`).
+    right_codes : ndarray, int64 (n,), optional
+        Lattice census code of each sample, for samples that came from a grid but no
+        longer lie on one (a grid placed in a rectified frame); with
+        ``terms.census_spacing`` they meet I1's census at that spacing.  Default: the
+        codes of a regular grid sent row by row, or no census.
+    right_offsets : ndarray, float32 (n, 2), optional
+        ``(dy, dx)`` of each sample's true position from its pixel ``(row, col)`` (samples
+        placed off the pixel grid): Eq. (2)'s colour term reads I1 there, bilinear.
 
     Returns
     -------
@@ -441,21 +459,27 @@ def filled_sparse_dsi(left: np.ndarray, guide: np.ndarray, rows: np.ndarray, col
     ((20, 30, 4), dtype('float32'))
     """
     grids = sparse_dsi_grids(left, guide, rows, cols, right_values, min_disp=min_disp, num_disp=num_disp,
-                             scale=scale, terms=terms, right_steps=right_steps)
+                             scale=scale, terms=terms, right_steps=right_steps, right_codes=right_codes,
+                             right_offsets=right_offsets)
     volume = slice_volume(guide, grids, pixel_of_row=pixel_of_row)
     release_grids(grids)
     return volume
 
 
-def _census_codes(guide, rows, cols, right_values, terms):
+def _census_codes(guide, rows, cols, right_values, terms, right_codes=None):
     """Lattice census codes of the samples and I1's codes at the same spacing, or (None, None).
 
-    The samples must be a regular grid sent row by row (rows x cols in row-major order).
+    The samples must be a regular grid sent row by row (rows x cols in row-major order),
+    unless their codes are given (``right_codes``).
     """
     from ..cost._census import lattice_census, spaced_census
     from ..cost._cost import to_gray
     if terms.census_spacing is None or terms.census_weight <= 0 or len(rows) < 4:
         return None, None
+    if right_codes is not None:
+        spacing_x, spacing_y = terms.census_spacing
+        return (np.ascontiguousarray(right_codes, np.int64),
+                spaced_census(guide, spacing_x=spacing_x, spacing_y=spacing_y))
     rows, cols = np.asarray(rows, np.int64), np.asarray(cols, np.int64)
     n_cols = int(np.argmax(rows != rows[0])) if np.any(rows != rows[0]) else len(rows)
     if len(rows) % n_cols:
@@ -468,7 +492,8 @@ def _census_codes(guide, rows, cols, right_values, terms):
 
 def sparse_dsi_grids(left: np.ndarray, guide: np.ndarray, rows: np.ndarray, cols: np.ndarray,
                      right_values: np.ndarray, *, min_disp: int, num_disp: int, scale: FillScale,
-                     terms: SparseCostTerms, right_steps: np.ndarray | None = None) -> SliceGrids:
+                     terms: SparseCostTerms, right_steps: np.ndarray | None = None,
+                     right_codes: np.ndarray | None = None, right_offsets: np.ndarray | None = None) -> SliceGrids:
     """The splatted and blurred grids of :func:`filled_sparse_dsi`, not yet sliced.
 
     For callers that slice pixel by pixel inside their own kernel (:func:`slice_pixel`),
@@ -485,14 +510,16 @@ def sparse_dsi_grids(left: np.ndarray, guide: np.ndarray, rows: np.ndarray, cols
     if right_steps is None:
         right_steps = np.full(len(rows), np.nan, np.float32)
         terms = replace(terms, step_weight=0.0)
-    right_codes, left_codes = _census_codes(guide, rows, cols, right_values, terms)
+    right_codes, left_codes = _census_codes(guide, rows, cols, right_values, terms, right_codes)
     if right_codes is None:
         right_codes, left_codes = np.full(len(rows), -1, np.int64), np.zeros((h, w), np.uint8)
         terms = replace(terms, census_weight=0.0)
+    offsets = (np.zeros((0, 2), np.float32) if right_offsets is None
+               else np.ascontiguousarray(right_offsets, np.float32).reshape(-1, 2))
     samples = RightSamples(np.ascontiguousarray(right_values, np.float32),
-                           np.ascontiguousarray(right_steps, np.float32), right_codes)
+                           np.ascontiguousarray(right_steps, np.float32), right_codes, offsets)
     stride = _lattice_stride(np.asarray(rows, np.int64), np.asarray(cols, np.int64), w) if min_disp >= 0 else 0
-    if stride and num_disp > stride:
+    if stride and num_disp > stride and right_offsets is None:
         return _lattice_sparse_dsi_grids(left, guide, rows, cols, samples, left_codes, stride=stride, geom=geom,
                                          min_disp=int(min_disp), num_disp=int(num_disp), terms=terms)
     grid_val = zeroed_volume(geom.shape + (num_disp,))

@@ -127,6 +127,15 @@ class DecodeJob:
         Keyword arguments of :class:`stereobudget.synthesis.SynthesisParams` for the
         recovered right image (None: the defaults); plain values, so that the job stays
         light to build and to send to a worker.
+    calibration : str or None
+        Stereo calibration file (:func:`stereobudget.geometry.read_calibration`): the pair
+        is rectified at the host and decoded in the rectified frame.
+    depth, points : str or None
+        Metric outputs (need ``calibration``): depth in metres (``.tif``/``.pfm``/``.npy``
+        float32, ``.png`` 16-bit millimetres) and a binary PLY point cloud.
+    frame : {"rectified", "raw"} or None
+        Pixel grid of the disparity, preview and depth maps with a calibration; None:
+        disparity and preview in the rectified left frame, depth in the raw one.
     """
 
     left: str | None
@@ -144,6 +153,10 @@ class DecodeJob:
     max_memory: int | None = None
     disparity_format: str | None = None
     synthesis: dict | None = None
+    calibration: str | None = None
+    depth: str | None = None
+    points: str | None = None
+    frame: str | None = None
 
     @property
     def label(self) -> str:
@@ -152,7 +165,8 @@ class DecodeJob:
     @property
     def outputs(self) -> dict:
         return {k: v for k, v in (("disparity", self.disparity), ("preview", self.preview),
-                                  ("right", self.right)) if v is not None}
+                                  ("right", self.right), ("depth", self.depth), ("points", self.points))
+                if v is not None}
 
 
 def _as_image_dtype(image, dtype):
@@ -218,7 +232,7 @@ def decode_file(job: DecodeJob, *, after_write: AfterWrite | None = None) -> dic
         raise OptionError("only one of LEFT and SAMPLES can be '-' (standard input)")
     outputs = job.outputs
     check_job_outputs(job)
-    inputs = [job.left, job.samples]
+    inputs = [job.left, job.samples] + ([job.calibration] if job.calibration else [])
     overwrite = prepare_outputs(list(outputs.values()), inputs, overwrite=job.overwrite,
                                 make_dirs=job.batch)
     from ..io import _images as imageio
@@ -258,10 +272,23 @@ def decode_arrays(left, samples, job: DecodeJob, *, left_name: str, samples_name
     from ..decoding import _checks as checks
     from ..decoding import _disprange as disprange
     auto = disprange.is_auto(job.max_disp)
+    raw_left, raw_samples = left, samples
+    rectification = None
     try:
         # Sizes and types first (the estimate needs them to agree), then the range.
         decoders.check_inputs(left, samples, min_disp=0, max_disp=1)
         timings["validate"] = time.perf_counter() - t
+        if job.calibration is not None:
+            # Rectified at the host: I1 resampled, each sample placed where it lands
+            # (maps computed once per calibration file and image size).
+            from ..geometry import _rectify as rectify
+            t = time.perf_counter()
+            rectification = rectify.rectification_for(job.calibration, left.shape[1], left.shape[0])
+            timings["rectify_maps"] = time.perf_counter() - t
+            t = time.perf_counter()
+            left = rectify.rectify_left(left, rectification)
+            samples = rectify.rectify_samples(samples, rectification)
+            timings["rectify"] = time.perf_counter() - t
         if announce:
             # After an install or upgrade numba compiles for minutes: say so before the
             # first kernel runs (a batch says it once, in the command).
@@ -328,6 +355,17 @@ def decode_arrays(left, samples, job: DecodeJob, *, left_name: str, samples_name
     timings["checks"] = time.perf_counter() - t
 
     t = time.perf_counter()
+    shown, depth, cloud = disparity, None, None
+    if rectification is not None:
+        from ..geometry import _rectify as rectify
+        if job.frame == "raw":
+            shown = rectify.raw_left_disparity(disparity, rectification)
+        if job.depth is not None:
+            depth = rectify.depth_map(disparity, rectification, frame=job.frame or "raw")
+        if job.points is not None:
+            cloud = rectify.point_cloud(disparity, rectification, raw_left)
+        timings["metric"] = time.perf_counter() - t
+        t = time.perf_counter()
     # The outputs and the record of what made them are written together: a batch
     # interrupted in between would otherwise redo a finished file.  The outputs are all
     # or none: each goes to its temporary file and all are moved into place at the end,
@@ -335,12 +373,18 @@ def decode_arrays(left, samples, job: DecodeJob, *, left_name: str, samples_name
     with interrupts_deferred():
         with written_together():
             if job.disparity is not None:
-                dispio.write_disparity(job.disparity, disparity, overwrite=overwrite,
+                dispio.write_disparity(job.disparity, shown, overwrite=overwrite,
                                        stream_format=((job.disparity_format or "pfm") if job.disparity == STDIO
                                                       else None))
             if job.preview is not None:
-                dispio.write_preview(job.preview, disparity, min_disp=min_disp, max_disp=max_disp,
+                dispio.write_preview(job.preview, shown, min_disp=min_disp, max_disp=max_disp,
                                      overwrite=overwrite)
+            if depth is not None:
+                from ..geometry._output import write_depth
+                write_depth(job.depth, depth, overwrite=overwrite)
+            if cloud is not None:
+                from ..geometry._output import write_ply
+                write_ply(job.points, *cloud, overwrite=overwrite)
             if right_image is not None:
                 imageio.write_image(job.right, right_image,
                                     channel_order="rgb" if right_image.ndim == 3 else "gray", overwrite=overwrite)
@@ -354,11 +398,11 @@ def decode_arrays(left, samples, job: DecodeJob, *, left_name: str, samples_name
         "status": "ok", "left": left_name, "samples": samples_name,
         "width": int(left.shape[1]), "height": int(left.shape[0]),
         "channels": 1 if left.ndim == 2 else int(left.shape[2]), "dtype": str(left.dtype),
-        "sample_count": int(samples.values.shape[0]), "epsilon": samples.epsilon,
-        "pixel_fraction": samples.epsilon,
-        "pattern": samples.pattern.kind, "stride_x": samples.pattern.stride_x,
-        "stride_y": samples.pattern.stride_y, "codec": samples.codec,
-        "value_bits": samples.value_bits or 8 * samples.values.dtype.itemsize,
+        "sample_count": int(raw_samples.values.shape[0]), "epsilon": raw_samples.epsilon,
+        "pixel_fraction": raw_samples.epsilon,
+        "pattern": raw_samples.pattern.kind, "stride_x": raw_samples.pattern.stride_x,
+        "stride_y": raw_samples.pattern.stride_y, "codec": raw_samples.codec,
+        "value_bits": raw_samples.value_bits or 8 * raw_samples.values.dtype.itemsize,
         "method": result.method, "min_disp": int(min_disp), "max_disp": int(max_disp),
         "range_source": "estimated" if auto else "given", "range_estimate": estimate.summary(),
         "range_widened_from": widened_from,
@@ -370,6 +414,17 @@ def decode_arrays(left, samples, job: DecodeJob, *, left_name: str, samples_name
         "timings": {k: round(float(v), 4) for k, v in timings.items()},
         "outputs": {k: ("<stdout>" if v == STDIO else v) for k, v in outputs.items()},
     }
+    if rectification is not None:
+        # Which pixel grid each map is on: the pair is decoded in the rectified left frame.
+        summary["frame"] = {"disparity": job.frame or "rectified", "depth": job.frame or "raw",
+                            "right": "rectified"}
+        summary["calibration"] = {**rectification.calibration.summary(), **rectification.summary(),
+                                  "samples_placed": int(samples.values.shape[0])}
+        if cloud is not None:
+            summary["points"] = int(len(cloud[0]))
+        if depth is not None:
+            finite = depth[np.isfinite(depth)]
+            summary["depth_range_m"] = [float(finite.min()), float(finite.max())] if finite.size else None
     decoder_summary = result.summary() if hasattr(result, "summary") else {}
     for key, value in decoder_summary.items():
         if key not in summary and key not in ("timings",):

@@ -43,7 +43,7 @@ HEADER = sbio.HEADER_SIZE_V1_0
 W, H = 40, 30
 
 #: Exit codes of docs/errors.md.
-DOCUMENTED_EXIT_CODES = {0, 1, 2, 4, 5, 6, 7, 8, 9, 10, 11, 12, 130, 141}
+DOCUMENTED_EXIT_CODES = {0, 1, 2, 4, 5, 6, 7, 8, 9, 10, 11, 12, 13, 130, 141}
 
 
 # --- fixtures ------------------------------------------------------------------------------

@@ -1,0 +1,348 @@
+"""Self-rectification (experimental): the epipolar geometry from I1 and the samples alone.
+
+Not offered by ``sb-decode`` yet: ``scripts/unrectified.py --variants self`` measured it
+refusing most unrectified realdev pairs and decoding some of the rest far worse than the
+known calibration while its residual stayed small (docs/results.md).
+
+The right camera's grid is a decimated right image, so it can be matched with I1 read at
+the grid's spacing (:func:`match_lattice`), which gives point pairs in full-resolution
+pixels; ``cv2.findFundamentalMat``
+(RANSAC) keeps the consistent ones.  ``cv2.stereoRectifyUncalibrated``'s homographies
+turn nearly rectified pairs by tens of degrees; instead the relative rotation is
+recovered from the essential matrix for a range of focal lengths and the pair rectified
+as a calibrated one (alpha 1: nothing either camera sees is cropped), keeping the focal
+length whose rectified matches share their rows best.  The residual
+vertical error of the kept matches after rectification is reported; too few reliable
+matches, or a residual too large, is refused in one line rather than decoded into
+garbage.  There is no metric scale and no lens distortion in this model.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..errors import CalibrationError
+from ..io._samples import SampleSet
+
+#: Fewest RANSAC-consistent matches accepted.
+MIN_MATCHES = 40
+#: Largest median vertical residual (full-resolution pixels) accepted after rectification.
+MAX_RESIDUAL = 0.5
+#: Patches matched: side in samples, how many (spread over the frame).
+PATCH = 9
+PATCHES = 384
+#: Least gray-level spread of a patch worth matching, least correlation of a match, and
+#: least margin over the best correlation elsewhere (repetitive textures fail it).
+MIN_TEXTURE = 6.0
+MIN_CORRELATION = 0.8
+MIN_MARGIN = 0.05
+
+
+@dataclass(frozen=True)
+class SelfRectificationReport:
+    """What the estimate found: matches kept of those tried, and the vertical residual (px) of
+    the half of the matches the final refinement did not see."""
+
+    matches: int
+    candidates: int
+    residual_median: float
+    residual_p90: float
+
+    def summary(self) -> dict:
+        return {"matches": self.matches, "candidates": self.candidates,
+                "residual_vertical_px_median": round(self.residual_median, 3),
+                "residual_vertical_px_p90": round(self.residual_p90, 3)}
+
+
+def _gray_u8(image):
+    import cv2
+
+    a = np.asarray(image)
+    if a.dtype == np.uint16:
+        a = (a >> 8).astype(np.uint8)
+    if a.ndim == 3:
+        a = cv2.cvtColor(np.ascontiguousarray(a[:, :, :3]), cv2.COLOR_RGB2GRAY)
+    return np.ascontiguousarray(a)
+
+
+def _fail(message):
+    raise CalibrationError(message, path="--calibration auto")
+
+
+def match_lattice(left: np.ndarray, samples: SampleSet, *, patch: int = PATCH, count: int = PATCHES,
+                  search: tuple | None = None):
+    """Point pairs (n, 2) x (n, 2), in full-resolution pixels, between I1 and the sample grid.
+
+    Patches of the grid (``patch`` x ``patch`` samples) where it has texture, spread over
+    the frame, are matched against I1 read at the grid's spacing at every full-resolution
+    offset (I1 decimated at each of the ``stride_x * stride_y`` phases: the same point
+    sampling as the grid's, so a match is exact to a pixel), by normalised
+    cross-correlation (robust to gain and exposure).  A match is kept when it is strong
+    and clearly better than the best elsewhere (a repetitive texture is dropped).
+    """
+    import cv2
+
+    if not samples.pattern.is_regular_grid or samples.mosaic:
+        _fail(f"self-rectification matches the samples as a decimated image and needs a grid, not "
+              f"{samples.channel_order} {samples.pattern.kind} samples")
+    p = samples.pattern
+    sx, sy = p.stride_x, p.stride_y
+    lattice = samples.grid_values()
+    if samples.channel_order == "bgr":
+        lattice = lattice[:, :, ::-1]
+    right_small = _gray_u8(lattice if lattice.shape[2] > 1 else lattice[:, :, 0]).astype(np.float32)
+    left_gray = _gray_u8(left).astype(np.float32)
+    h, w = left_gray.shape
+    rows, cols = right_small.shape
+    half = patch // 2
+    if rows < patch + 2 or cols < patch + 2:
+        return np.zeros((0, 2)), np.zeros((0, 2))
+    # Search window around the same place, in grid cells: disparities up to a third of the
+    # width either way, rows up to a tenth of the height.
+    reach_x, reach_y = search or (max(2, w // (3 * sx)), max(2, h // (10 * sy)))
+    # Textured patches, the best of each block of a 12 x 8 partition of the grid.
+    mean = cv2.boxFilter(right_small, -1, (patch, patch), borderType=cv2.BORDER_REFLECT)
+    sq = cv2.boxFilter(right_small * right_small, -1, (patch, patch), borderType=cv2.BORDER_REFLECT)
+    texture = np.sqrt(np.maximum(sq - mean * mean, 0))
+    texture[:half, :] = texture[-half:, :] = 0
+    texture[:, :half] = texture[:, -half:] = 0
+    centres = []
+    blocks_y, blocks_x = 8, 12
+    for by in range(blocks_y):
+        for bx in range(blocks_x):
+            r0, r1 = by * rows // blocks_y, (by + 1) * rows // blocks_y
+            c0, c1 = bx * cols // blocks_x, (bx + 1) * cols // blocks_x
+            block = texture[r0:r1, c0:c1]
+            if block.size == 0:
+                continue
+            flat = np.argsort(block, axis=None)[::-1][:max(1, count // (blocks_x * blocks_y))]
+            for k in flat:
+                r, c = divmod(int(k), block.shape[1])
+                if block[r, c] >= MIN_TEXTURE:
+                    centres.append((r0 + r, c0 + c))
+    phases = [(py, px, np.ascontiguousarray(left_gray[py::sy, px::sx])) for py in range(sy) for px in range(sx)]
+    pts_left, pts_right = [], []
+    for r, c in centres:
+        template = right_small[r - half:r + half + 1, c - half:c + half + 1]
+        # Full-resolution centre of the patch in the right image, and the window searched in I1.
+        xr, yr = p.offset_x + c * sx, p.offset_y + r * sy
+        scores = []
+        for py, px, image in phases:
+            # Cells of this phase: column j is pixel px + j * sx.
+            j0 = max(0, int(np.ceil((xr - px) / sx)) - reach_x - half)
+            i0 = max(0, int(np.ceil((yr - py) / sy)) - reach_y - half)
+            j1 = min(image.shape[1], j0 + 2 * (reach_x + half) + 1)
+            i1 = min(image.shape[0], i0 + 2 * (reach_y + half) + 1)
+            window = image[i0:i1, j0:j1]
+            if window.shape[0] < patch or window.shape[1] < patch:
+                continue
+            ncc = cv2.matchTemplate(window, template, cv2.TM_CCOEFF_NORMED)
+            ncc = np.nan_to_num(ncc, nan=-1.0)
+            iy, jx = np.unravel_index(int(np.argmax(ncc)), ncc.shape)
+            x = px + (j0 + jx + half) * sx
+            y = py + (i0 + iy + half) * sy
+            scores.append((float(ncc[iy, jx]), x, y, ncc, py, px, i0, j0))
+        if not scores:
+            continue
+        best = max(scores, key=lambda item: item[0])
+        score, x, y = best[0], best[1], best[2]
+        if score < MIN_CORRELATION:
+            continue
+        # The best elsewhere (more than 2 cells away), over every phase: a clear winner only.
+        second = -1.0
+        for value, _, _, ncc, py, px, i0, j0 in scores:
+            ys = py + (i0 + np.arange(ncc.shape[0]) + half) * sy
+            xs = px + (j0 + np.arange(ncc.shape[1]) + half) * sx
+            far = (np.abs(ys - y)[:, None] > 2 * sy) | (np.abs(xs - x)[None, :] > 2 * sx)
+            if far.any():
+                second = max(second, float(ncc[far].max()))
+        if score - second < MIN_MARGIN:
+            continue
+        pts_left.append((x, y))
+        pts_right.append((xr, yr))
+    return np.array(pts_left, np.float64).reshape(-1, 2), np.array(pts_right, np.float64).reshape(-1, 2)
+
+
+def self_rectification(left: np.ndarray, samples: SampleSet, *, min_matches: int = MIN_MATCHES,
+                       max_residual: float = MAX_RESIDUAL):
+    """Estimate a rectification of the pair from I1 and the right camera's grid alone.
+
+    Parameters
+    ----------
+    left : ndarray
+        I1 (RGB or gray), as given.
+    samples : SampleSet
+        A ``grid`` sample set of the right camera.
+    min_matches, max_residual
+        The refusal thresholds (:data:`MIN_MATCHES`, :data:`MAX_RESIDUAL`).
+
+    Returns
+    -------
+    rectification : Rectification
+        With a unit baseline: no metric scale, so no depth can be given.
+    report : SelfRectificationReport
+
+    Raises
+    ------
+    CalibrationError
+        Too few reliable matches (a textureless or repetitive scene), or a rectification
+        whose vertical residual stays above ``max_residual``.
+    """
+    import cv2
+
+    from ._calibration import StereoCalibration
+    from ._rectify import rectify_stereo
+
+    h, w = left.shape[:2]
+    pts1, pts2 = match_lattice(left, samples)
+    candidates = len(pts1)
+    if candidates < min_matches:
+        _fail(f"too few features match between I1 and the samples ({candidates}, at least {min_matches} needed) to "
+              "estimate the epipolar geometry (a textureless or repetitive scene?); give a calibration file")
+    f, inliers = cv2.findFundamentalMat(pts1, pts2, cv2.FM_RANSAC, ransacReprojThreshold=1.0,
+                                        confidence=0.999, maxIters=5000)
+    if f is None or f.shape != (3, 3) or inliers is None:
+        _fail(f"no epipolar geometry fits the {candidates} feature matches; give a calibration file")
+    keep = inliers.ravel().astype(bool)
+    if keep.sum() < min_matches:
+        _fail(f"too few reliable matches between I1 and the samples ({int(keep.sum())} of {candidates} agree on an "
+              f"epipolar geometry, at least {min_matches} needed); give a calibration file")
+    pts1, pts2 = pts1[keep], pts2[keep]
+    # Rotations are found up to the focal length, which a pair of images does not give
+    # well: each candidate focal length gives a relative pose (cv2.recoverPose of the
+    # essential matrix) and OpenCV's calibrated rectification; the one whose rectified
+    # matches share their rows best is kept.
+    best = None
+    for focal in np.geomspace(0.4, 3.0, 15) * w:
+        k = np.array([[focal, 0, (w - 1) / 2.0], [0, focal, (h - 1) / 2.0], [0, 0, 1]])
+        essential = k.T @ f @ k
+        try:
+            _, rotation, direction, _ = cv2.recoverPose(essential, pts1, pts2, k)
+        except cv2.error:
+            continue
+        t = direction.ravel()
+        if not np.all(np.isfinite(t)) or abs(t[0]) < 0.5 * np.linalg.norm(t):
+            continue
+        if t[0] > 0:
+            continue         # camera 2 to the left: not this focal length, or a swapped pair
+        calibration = StereoCalibration(M1=k, D1=np.zeros(5), M2=k.copy(), D2=np.zeros(5), R=rotation,
+                                        T=t / np.linalg.norm(t), image_size=(w, h), source="auto")
+        try:
+            rect = rectify_stereo(calibration, w, h)
+        except CalibrationError:
+            continue
+        r1 = _project(pts1, rect.R1, rect.P1, k)
+        r2 = _project(pts2, rect.R2, rect.P2, k)
+        residual = np.abs(r1[:, 1] - r2[:, 1])
+        if best is None or np.median(residual) < np.median(best[1]):
+            best = (rect, residual, r1[:, 0] - r2[:, 0])
+    if best is None:
+        _fail("no relative pose of the cameras fits the matches as a left/right pair (a swapped pair?); give a "
+              "calibration file")
+    rect, residual, disparity = best
+    # Lens distortion and the focal length refined on half of the matches and judged on the
+    # other half: eight parameters fit a hundred matches' rows too easily to trust the fit's
+    # own residual.
+    fit, held = slice(0, None, 2), slice(1, None, 2)
+    refined = _refine(rect.calibration, pts1[fit], pts2[fit], w, h)
+    if refined is not None:
+        c = refined[0]
+        check = np.abs(_project_distorted(pts1[held], c.R1, c.P1, c.calibration.M1, c.calibration.D1)[:, 1]
+                       - _project_distorted(pts2[held], c.R2, c.P2, c.calibration.M2, c.calibration.D2)[:, 1])
+        before = residual[held]
+        if np.median(check) < np.median(before):
+            rect, residual = c, check
+        else:
+            residual = before
+    else:
+        residual = residual[held]
+    report = SelfRectificationReport(matches=int(len(pts1)), candidates=candidates,
+                                     residual_median=float(np.median(residual)),
+                                     residual_p90=float(np.percentile(residual, 90)))
+    if report.residual_median > max_residual:
+        _fail(f"the estimated rectification leaves a median vertical error of {report.residual_median:.2f} px "
+              f"(over {report.matches} matches; at most {max_residual} accepted); give a calibration file")
+    return rect, report
+
+
+def _calibration_of(theta, w, h):
+    """The calibration of parameters ``theta``: rotation vector (3), T's y and z (x = -1), log focal / w, k1 of each lens."""
+    import cv2
+
+    from ._calibration import StereoCalibration
+    focal = float(np.exp(theta[5]) * w)
+    k = np.array([[focal, 0, (w - 1) / 2.0], [0, focal, (h - 1) / 2.0], [0, 0, 1]])
+    t = np.array([-1.0, theta[3], theta[4]])
+    return StereoCalibration(M1=k, D1=np.array([theta[6], 0, 0, 0, 0]), M2=k.copy(),
+                             D2=np.array([theta[7], 0, 0, 0, 0]), R=cv2.Rodrigues(np.asarray(theta[:3]))[0],
+                             T=t / np.linalg.norm(t), image_size=(w, h), source="auto")
+
+
+def _vertical_residuals(theta, pts1, pts2, w, h):
+    import cv2
+
+    c = _calibration_of(theta, w, h)
+    r1, r2, p1, p2, *_ = cv2.stereoRectify(c.M1, c.D1, c.M2, c.D2, (w, h), c.R, c.T.reshape(3, 1),
+                                           flags=cv2.CALIB_ZERO_DISPARITY, alpha=1.0, newImageSize=(w, h))
+    a = cv2.undistortPoints(pts1.reshape(-1, 1, 2), c.M1, c.D1, R=r1, P=p1).reshape(-1, 2)
+    b = cv2.undistortPoints(pts2.reshape(-1, 1, 2), c.M2, c.D2, R=r2, P=p2).reshape(-1, 2)
+    return (a[:, 1] - b[:, 1]) * (w / p1[0, 0])       # in raw pixels
+
+
+def _refine(calibration, pts1, pts2, w, h, iterations: int = 30):
+    """Levenberg-Marquardt on the pose, the focal length and each lens's k1, minimising the
+    matches' vertical residuals after rectification (robust: Huber weights at 1 px)."""
+    import cv2
+
+    from ._rectify import rectify_stereo
+    t = calibration.T / -calibration.T[0]
+    theta = np.r_[cv2.Rodrigues(calibration.R)[0].ravel(), t[1], t[2], np.log(calibration.M1[0, 0] / w), 0.0, 0.0]
+    prior = theta.copy()
+    prior_weight = np.array([0, 0, 0, 0, 0, 0.05, 0.5, 0.5]) * np.sqrt(len(pts1))
+    damping = 1e-3
+    try:
+        res = _vertical_residuals(theta, pts1, pts2, w, h)
+        for _ in range(iterations):
+            weights = 1.0 / np.maximum(1.0, np.abs(res))        # Huber
+            jac = np.empty((len(res), len(theta)))
+            for i in range(len(theta)):
+                step = np.zeros_like(theta)
+                step[i] = 1e-6 if i < 5 else 1e-5
+                jac[:, i] = (_vertical_residuals(theta + step, pts1, pts2, w, h) - res) / step[i]
+            a = np.vstack([jac * np.sqrt(weights)[:, None], np.diag(prior_weight)])
+            b = np.r_[-res * np.sqrt(weights), -prior_weight * (theta - prior)]
+            normal = a.T @ a
+            delta = np.linalg.solve(normal + damping * np.diag(np.diag(normal) + 1e-12), a.T @ b)
+            candidate = _vertical_residuals(theta + delta, pts1, pts2, w, h)
+            def cost(r, th):
+                return np.sum(np.minimum(r * r, 2 * np.abs(r) - 1)) + np.sum((prior_weight * (th - prior)) ** 2)
+            if cost(candidate, theta + delta) < cost(res, theta):
+                theta, res, damping = theta + delta, candidate, damping * 0.3
+            else:
+                damping *= 10
+            if np.max(np.abs(delta)) < 1e-7:
+                break
+        rect = rectify_stereo(_calibration_of(theta, w, h), w, h)
+    except (cv2.error, np.linalg.LinAlgError, CalibrationError):
+        return None
+    return rect, np.abs(_vertical_residuals(theta, pts1, pts2, w, h))
+
+
+def _project_distorted(points, rotation, projection, camera, distortion):
+    import cv2
+
+    return cv2.undistortPoints(np.ascontiguousarray(points, np.float64).reshape(-1, 1, 2), camera, distortion,
+                               R=rotation, P=projection).reshape(-1, 2)
+
+
+def _project(points, rotation, projection, camera):
+    """Raw pixels (n, 2) of an undistorted camera -> rectified pixels (n, 2)."""
+    import cv2
+
+    return cv2.undistortPoints(np.ascontiguousarray(points, np.float64).reshape(-1, 1, 2), camera, None,
+                               R=rotation, P=projection).reshape(-1, 2)
+
+
+__all__ = ["MIN_MATCHES", "MAX_RESIDUAL", "PATCH", "PATCHES", "MIN_TEXTURE", "MIN_CORRELATION", "MIN_MARGIN", "SelfRectificationReport", "match_lattice", "self_rectification"]
