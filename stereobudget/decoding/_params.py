@@ -117,6 +117,13 @@ class DecoderParams:
         costs, normalised by each pixel's tree support (Hirschmüller's search), which
         saves a tree and an aggregation but lets more errors pass the check: measured
         0.3-0.5 pp worse on the 9-scene mean, up to 2.5 pp on Teddy (benchmarks/bench.py).
+    plane_refinement : bool
+        After the semi-global routes' left-right check and row fill, fit a robust plane
+        to the confident pixels of each segment of I1 and let it replace the rejected
+        pixels and the terraces it explains, a grid's samples arbitrating
+        (:func:`stereobudget.aggregate.plane_refinement`).
+    plane_segment_size : int
+        Spacing in pixels of the segments' seeds (segments of about its square).
     """
 
     sigma_r: float = 15.0
@@ -144,6 +151,8 @@ class DecoderParams:
     sgm_edge_scale: float = 8.0
     sgm_paths: int = 8
     right_check: str = "tree"
+    plane_refinement: bool = False
+    plane_segment_size: int = 12
 
 
 @dataclass
