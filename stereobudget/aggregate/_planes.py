@@ -272,42 +272,41 @@ def fit_segment_planes(disparity, confident, labels, *, tolerance: float = DEFAU
 # --------------------------------------------------------------------------- replacement
 
 @njit(cache=True)
-def _sample_error(gray, lattice, y, x, d, oy, ox, sy, sx):
-    """(|I1(x, y) - sample|, 1) when left pixel (x, y) at disparity d lands on a lattice sample, else (0, 0)."""
-    if (y - oy) % sy != 0:
-        return 0.0, 0
-    r = (y - oy) // sy
-    if r < 0 or r >= lattice.shape[0]:
-        return 0.0, 0
-    j = (x - d - ox) / sx
-    jr = np.floor(j + 0.5)
-    if abs(j - jr) * sx > 0.5 or jr < 0 or jr >= lattice.shape[1]:
-        return 0.0, 0
-    return abs(gray[y, x] - lattice[r, int(jr)]), 1
+def _crossing_errors(field, gray, labels, lattice, oy, ox, sy, sx, err, hits):
+    """Add, per segment, how far I1 is from the samples where ``field`` says they are.
+
+    On a row that carries samples, the disparity field maps left pixel ``x`` to the right
+    abscissa ``f(x) = x - field(x)``; where ``f`` passes a sample's column ``xs`` between
+    ``x`` and ``x + 1`` (both of one segment, no occlusion jump), I1 linearly interpolated at
+    the crossing should equal the sample.
+    """
+    h, w = field.shape
+    for r in range(lattice.shape[0]):
+        y = oy + r * sy
+        if y >= h:
+            break
+        for x in range(w - 1):
+            k = labels[y, x]
+            if labels[y, x + 1] != k:
+                continue
+            f0 = x - field[y, x]
+            f1 = x + 1 - field[y, x + 1]
+            if not (f1 > f0 and f1 - f0 < 3.0):
+                continue
+            j = np.ceil((f0 - ox) / sx)
+            while j < lattice.shape[1] and ox + j * sx < f1:
+                if j >= 0:
+                    t = (ox + j * sx - f0) / (f1 - f0)
+                    value = (1.0 - t) * gray[y, x] + t * gray[y, x + 1]
+                    err[k] += abs(value - lattice[r, int(j)])
+                    hits[k] += 1
+                j += 1.0
 
 
 @njit(cache=True, parallel=True)
-def _replace(disparity, confident, labels, planes, accept, gray, lattice, oy, ox, sy, sx, tolerance, lo, hi, out):
+def _propose(disparity, confident, labels, planes, accept, tolerance, lo, hi, replace_confident, out):
+    """Each pixel's value if its segment's plane is taken (module docstring, step 3)."""
     h, w = disparity.shape
-    n = planes.shape[0]
-    # Per segment: sample errors of the rejected pixels' current and planar disparities.
-    err_now = np.zeros(n)
-    err_plane = np.zeros(n)
-    hits_now = np.zeros(n, np.int64)
-    hits_plane = np.zeros(n, np.int64)
-    if lattice.shape[0] > 0:
-        for y in range(h):
-            for x in range(w):
-                k = labels[y, x]
-                if not accept[k] or confident[y, x]:
-                    continue
-                p = planes[k, 0] * x + planes[k, 1] * y + planes[k, 2]
-                e, c = _sample_error(gray, lattice, y, x, disparity[y, x], oy, ox, sy, sx)
-                err_now[k] += e
-                hits_now[k] += c
-                e, c = _sample_error(gray, lattice, y, x, p, oy, ox, sy, sx)
-                err_plane[k] += e
-                hits_plane[k] += c
     for y in prange(h):
         for x in range(w):
             k = labels[y, x]
@@ -318,12 +317,16 @@ def _replace(disparity, confident, labels, planes, accept, gray, lattice, oy, ox
             p = planes[k, 0] * x + planes[k, 1] * y + planes[k, 2]
             if p < lo or p > hi:
                 continue
-            if confident[y, x]:
-                if abs(d - p) <= tolerance:
-                    out[y, x] = p
-            elif hits_plane[k] == 0 or hits_now[k] == 0 or \
-                    err_plane[k] * hits_now[k] <= err_now[k] * hits_plane[k]:
+            if not confident[y, x] or (replace_confident and abs(d - p) <= tolerance):
                 out[y, x] = p
+
+
+@njit(cache=True, parallel=True)
+def _arbitrate(disparity, proposed, labels, take, out):
+    h, w = disparity.shape
+    for y in prange(h):
+        for x in range(w):
+            out[y, x] = proposed[y, x] if take[labels[y, x]] else disparity[y, x]
 
 
 def _lattice_gray(samples):
@@ -347,7 +350,9 @@ def plane_refinement(disparity: np.ndarray, confident: np.ndarray, gray: np.ndar
                      min_disp: float, max_disp: float, size: int = DEFAULT_SEGMENT_SIZE,
                      compactness: float = DEFAULT_COMPACTNESS, iterations: int = DEFAULT_SEGMENT_ITERATIONS,
                      tolerance: float = DEFAULT_PLANE_TOLERANCE, min_inliers: float = DEFAULT_MIN_INLIERS,
-                     min_confident: float = DEFAULT_MIN_CONFIDENT, labels: np.ndarray | None = None) -> np.ndarray:
+                     min_confident: float = DEFAULT_MIN_CONFIDENT, labels: np.ndarray | None = None,
+                     replace_confident: bool = True, coarse_size: int = 0,
+                     snap_tolerance: float | None = None) -> np.ndarray:
     """Replace rejected and terraced pixels by their segment's plane where it explains the confident ones.
 
     Parameters
@@ -384,9 +389,30 @@ def plane_refinement(disparity: np.ndarray, confident: np.ndarray, gray: np.ndar
         labels = segment_image(gray, size=size, compactness=compactness, iterations=iterations)
     planes, inliers, counts, sizes = fit_segment_planes(disparity, confident, labels, tolerance=tolerance)
     accept = (counts >= 3) & (counts >= min_confident * sizes) & (inliers >= min_inliers * counts)
+    labels = np.ascontiguousarray(labels, np.int32)
+    proposed = np.empty_like(disparity)
+    snap = tolerance if snap_tolerance is None else snap_tolerance
+    _propose(disparity, confident, labels, planes, accept, float(snap), float(min_disp), float(max_disp),
+             bool(replace_confident), proposed)
     lattice, oy, ox, sy, sx = _lattice_gray(samples)
-    out = np.empty_like(disparity)
-    _replace(disparity, confident, np.ascontiguousarray(labels, np.int32), planes, accept,
-             np.ascontiguousarray(gray, np.float64), lattice, oy, ox, sy, sx, float(tolerance),
-             float(min_disp), float(max_disp), out)
+    out = proposed
+    if lattice.shape[0] > 0:
+        # A segment takes its plane unless the samples say its current disparities fit them better.
+        gray64 = np.ascontiguousarray(gray, np.float64)
+        n = planes.shape[0]
+        err_now, err_new = np.zeros(n), np.zeros(n)
+        hits_now, hits_new = np.zeros(n, np.int64), np.zeros(n, np.int64)
+        _crossing_errors(disparity, gray64, labels, lattice, oy, ox, sy, sx, err_now, hits_now)
+        _crossing_errors(proposed, gray64, labels, lattice, oy, ox, sy, sx, err_new, hits_new)
+        take = (hits_now == 0) | (hits_new == 0) | (err_new * hits_now <= err_now * hits_new)
+        out = np.empty_like(disparity)
+        _arbitrate(disparity, proposed, labels, take, out)
+    if coarse_size:
+        # Segments too weakly textured or too rejected for a plane of their own: a coarser
+        # segmentation's planes, fitted to the confident pixels and those the fine planes took.
+        explained = confident | (out != disparity)
+        return plane_refinement(out, explained, gray, samples=samples, min_disp=min_disp, max_disp=max_disp,
+                                size=coarse_size, compactness=compactness, iterations=iterations,
+                                tolerance=tolerance, min_inliers=min_inliers, min_confident=min_confident,
+                                replace_confident=False)
     return out
