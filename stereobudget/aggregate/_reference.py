@@ -88,7 +88,8 @@ def left_right_refinement_reference(disp_left: np.ndarray, disp_right: np.ndarra
 
 def plane_refinement_reference(disparity, confident, gray, *, samples=None, min_disp, max_disp, size=12,
                                compactness=12.0, iterations=3, tolerance=1.0, min_inliers=0.7,
-                               min_confident=0.2, replace_confident=True, coarse_size=0, snap_tolerance=None):
+                               min_confident=0.2, replace_confident=True, coarse_size=0, snap_tolerance=0.5,
+                               anchored=True):
     """:func:`stereobudget.aggregate.plane_refinement` step by step in float64 numpy, one segment at a time.
 
     Segmentation: every pixel to the nearest (grey level over ``compactness``, distance over
@@ -96,8 +97,9 @@ def plane_refinement_reference(disparity, confident, gray, *, samples=None, min_
     centres move to their pixels' mean.  Per segment: the plane of its confident pixels by
     Cauchy-reweighted least squares (scales ``IRLS_SCALES``) from the fronto-parallel plane at
     their median; accepted when enough pixels are confident and enough of those lie within
-    ``tolerance``.  Proposal: the plane at rejected pixels and (``replace_confident``) at
-    confident ones within ``snap_tolerance``.  Arbitration: on sample rows, I1 at each place
+    ``tolerance``.  Proposal: the plane at rejected pixels (``anchored``: those whose nearest
+    confident pixel of the row on one side lies within ``tolerance`` of the plane) and
+    (``replace_confident``) at confident ones within ``snap_tolerance``.  Arbitration: on sample rows, I1 at each place
     where ``x - d(x)`` crosses a sample's column, interpolated between the two pixels, against
     the sample; a segment keeps its current values only when they fit the samples better on
     average.  Then the same with ``coarse_size`` segments for what is still rejected.
@@ -132,7 +134,7 @@ def plane_refinement_reference(disparity, confident, gray, *, samples=None, min_
     # --- planes and proposal
     n = ny * nx
     proposed = disparity.astype(np.float64).copy()
-    snap = tolerance if snap_tolerance is None else snap_tolerance
+    snap = snap_tolerance
     for k in range(n):
         members = labels == k
         use = members & confident
@@ -152,7 +154,17 @@ def plane_refinement_reference(disparity, confident, gray, *, samples=None, min_
             continue
         p = plane[0] * (xx - mx) + plane[1] * (yy - my) + plane[2]
         take = members & (p >= min_disp) & (p <= max_disp)
-        take &= ~confident | (replace_confident & (np.abs(disparity - p) <= snap))
+        snapped = confident & replace_confident & (np.abs(disparity - p) <= snap)
+        rejected = ~confident
+        if anchored:
+            # The nearest confident pixel of the row on either side must lie on the plane too.
+            for y, x in zip(*np.nonzero(take & rejected)):
+                left = np.nonzero(confident[y, :x])[0]
+                right = np.nonzero(confident[y, x + 1:])[0]
+                rejected[y, x] = ((left.size > 0 and _on_plane(y, left[-1], disparity, plane, mx, my, tolerance))
+                                  or (right.size > 0
+                                      and _on_plane(y, x + 1 + right[0], disparity, plane, mx, my, tolerance)))
+        take &= rejected | snapped
         proposed[take] = p[take]
     # --- arbitration by the samples
     lattice, oy, ox, sy, sx = _lattice_gray(samples)
@@ -185,5 +197,10 @@ def plane_refinement_reference(disparity, confident, gray, *, samples=None, min_
                                           min_disp=min_disp, max_disp=max_disp, size=coarse_size,
                                           compactness=compactness, iterations=iterations, tolerance=tolerance,
                                           min_inliers=min_inliers, min_confident=min_confident,
-                                          replace_confident=False)
+                                          replace_confident=False, anchored=anchored)
     return out
+
+
+def _on_plane(y, x, disparity, plane, mx, my, tolerance):
+    """Whether pixel (x, y)'s disparity lies within ``tolerance`` of ``plane`` (coordinates about (mx, my))."""
+    return abs(float(disparity[y, x]) - (plane[0] * (x - mx) + plane[1] * (y - my) + plane[2])) <= tolerance
