@@ -15,15 +15,16 @@ surface of I1 that is a plane in the scene has a disparity that is a plane in th
    scale shrinks from 4 to 0.5 px, starting from the fronto-parallel plane at the median:
    outliers (another surface inside the segment, a mismatch) lose their weight.
 3. Where at least ``min_inliers`` of the confident pixels lie within ``tolerance`` of the
-   plane, the plane replaces the rejected pixels of the segment and the confident pixels
-   it explains (the terraces); confident pixels farther away keep their value.
-4. The samples arbitrate: on the rows that carry samples, a left pixel ``x`` whose
-   disparity ``d`` puts it on a lattice column (``x - d`` within half a pixel of it) is
-   compared with that sample, the host's exact right pixel.  A segment's rejected pixels
-   take the plane only when the plane reproduces those samples at least as well as the
-   disparities it would replace.
+   plane, the plane replaces the rejected pixels of the segment (those whose row's nearest
+   confident pixel on one side lies on it too) and the confident pixels within
+   ``snap_tolerance`` of it (the terraces); confident pixels farther away keep their value.
+4. The samples arbitrate: on the rows that carry samples, where the disparity field
+   maps left pixels ``x, x + 1`` across a sample's column (``x - d(x)`` passes it), I1
+   interpolated at the crossing is compared with that sample, the host's exact right
+   pixel.  A segment takes its plane only when the plane reproduces those samples at
+   least as well, on average, as the disparities it would replace.
 
-:func:`plane_refinement_reference` states the same steps in plain numpy, one segment at a
+:func:`stereobudget.aggregate.plane_refinement_reference` states the same steps in plain numpy, one segment at a
 time; the numba kernels here are held to it by the tests.
 """
 
@@ -412,8 +413,8 @@ def plane_refinement(disparity: np.ndarray, confident: np.ndarray, gray: np.ndar
         rejected, fitted to the confident pixels and those the first pass replaced.
     snap_tolerance : float
         See ``replace_confident``.  0.5 measured better than 1 on the paper's four scenes
-        (a pixel within 1 of a slightly tilted plane may be the better one) for less on the
-        real pairs (docs: commit history of this module).
+        (a pixel within 1 of a slightly tilted plane may be the better one) and gained less
+        on the real pairs (``benchmarks/evaluate_real.py --param plane_refinement=True``).
     anchored : bool
         A rejected pixel takes the plane only when the plane also explains the nearest
         confident pixel of its row on either side.
