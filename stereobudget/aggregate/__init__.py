@@ -8,6 +8,7 @@ __getattr__, __dir__, __all__ = attach(__name__, {
     '_winner': ['subpixel_winner', 'refined_winner', 'winner_take_all'],
     '_refine': ['right_disparity_from_left', 'left_right_stable', 'nonlocal_refinement', 'left_right_refined_rows', 'pair_trees', 'full_pair_disparity', 'median_filter_disparity', 'fill_from_row'],
     '_pair_volumes': ['pair_cost_rows'],
-    '_reference': ['aggregate_reference', 'left_right_refinement_reference'],
+    '_planes': ['segment_image', 'fit_segment_planes', 'plane_refinement'],
+    '_reference': ['aggregate_reference', 'left_right_refinement_reference', 'plane_refinement_reference'],
     '_semiglobal': ['semiglobal_aggregate', 'semiglobal_aggregate_reference', 'semiglobal_winners', 'semiglobal_disparities'],
 })

@@ -20,6 +20,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..aggregate._refine import fill_from_row, full_pair_disparity, left_right_stable, median_filter_disparity
+from ..aggregate._planes import plane_refinement
 from ..aggregate._semiglobal import semiglobal_disparities
 from ..cost._census import census_cost_volume
 from ..cost._cost import to_gray
@@ -86,8 +87,9 @@ def census_semiglobal_disparity(left_f, right_f, *, tree_guide, min_disp, num_di
                                 p2=params.sgm_p2 * margin, params=params, timer=timer)
 
 
-def semiglobal_disparity(cost, guide, *, min_disp, p1, p2, params, timer):
-    """Semi-global paths, diagonal left-right check, row fill of rejected pixels, median.
+def semiglobal_disparity(cost, guide, *, min_disp, p1, p2, params, timer, samples=None):
+    """Semi-global paths, diagonal left-right check, row fill of rejected pixels, the
+    plane refinement (``params.plane_refinement``), median.
 
     The tail that every semi-global route shares (the full pair, both of Hybrid's).
 
@@ -101,13 +103,17 @@ def semiglobal_disparity(cost, guide, *, min_disp, p1, p2, params, timer):
     p1, p2 : float
         Path penalties in the cost's units.
     params : stereobudget.decoding.DecoderParams
-        ``sgm_edge_scale``, ``sgm_paths``, ``median_size``.
+        ``sgm_edge_scale``, ``sgm_paths``, ``median_size``, ``plane_refinement``,
+        ``plane_segment_size``.
     timer : callable
+    samples : SampleSet, optional
+        The samples the plane refinement checks its planes against.
 
     Returns
     -------
     ndarray, float32 (H, W)
     """
+    max_disp = min_disp + cost.shape[2] - 1
     with timer("aggregate"):
         # The winners are taken row by row as the last pass completes each row's sum.
         disp_left, disp_right = semiglobal_disparities(cost, guide, min_disp=int(min_disp), p1=p1, p2=p2,
@@ -115,4 +121,10 @@ def semiglobal_disparity(cost, guide, *, min_disp, p1, p2, params, timer):
         del cost
     with timer("refine"):
         stable = left_right_stable(disp_left, disp_right, np.float32(1.0))
-        return median_filter_disparity(fill_from_row(disp_left, stable), params.median_size)
+        filled = fill_from_row(disp_left, stable)
+    if params.plane_refinement:
+        with timer("planes"):
+            filled = plane_refinement(filled, stable, guide, samples=samples, min_disp=min_disp,
+                                      max_disp=max_disp, size=params.plane_segment_size)
+    with timer("refine"):
+        return median_filter_disparity(filled, params.median_size)

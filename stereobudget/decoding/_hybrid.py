@@ -125,4 +125,5 @@ def _hybrid_census_semiglobal(left_f, guide, samples, left_lp, right_lp, *, min_
                           volume_scale=weight / params.truncation, census_weight=(1.0 - weight) / 8.0)
         margin = typical_margin(cost, floor=0.0)
     return semiglobal_disparity(cost, guide, min_disp=min_disp, p1=params.sgm_p1 * margin,
-                                p2=params.hybrid_sgm_p2 * margin, params=params, timer=timer)
+                                p2=params.hybrid_sgm_p2 * margin, params=params, timer=timer,
+                                samples=samples)

@@ -21,6 +21,10 @@ surfaces hit, the one with the largest disparity (nearest) is seen.  Its texture
 ``fine_texture`` textures between 0.3 and 0.45 cycles/pixel (a stride-5 grid aliases them),
                  integer disparities.
 ``large_range``  a wide image with disparities beyond 100 pixels.
+``ground_plane`` a road seen from a car: a weakly textured ground whose disparity grows
+                 from the top row to the bottom one, with upright objects standing on it.
+``weak_texture`` a slanted background of texture a few grey levels deep, with slanted
+                 objects of ordinary texture in front.
 """
 
 from __future__ import annotations
@@ -31,7 +35,8 @@ from dataclasses import dataclass, field
 import numpy as np
 from numba import njit
 
-SCENE_KINDS = ("planes", "slanted", "textureless", "fine_texture", "large_range")
+# New kinds go at the end: a kind's position seeds its layout.
+SCENE_KINDS = ("planes", "slanted", "textureless", "fine_texture", "large_range", "ground_plane", "weak_texture")
 
 # kind -> (height, width, max_disp) used when the caller gives none
 _DEFAULT_SIZE = {
@@ -40,6 +45,8 @@ _DEFAULT_SIZE = {
     "textureless": (240, 320, 24),
     "fine_texture": (240, 320, 16),
     "large_range": (240, 640, 128),
+    "ground_plane": (240, 320, 48),
+    "weak_texture": (240, 320, 32),
 }
 
 # Texture octaves in cycles per pixel.  Ordinary textures stay below 0.1 cycles/pixel, the
@@ -275,6 +282,28 @@ def _layout(kind: str, rng: np.random.Generator, height: int, width: int, max_di
         for d in np.linspace(0.45, 0.9, 3) * max_disp:
             support = _random_support(rng, height, width, size_range=(0.2, 0.35))
             surfaces.append(_Surface(0.0, 0.0, float(round(d)), support, _random_texture(rng, _FINE_OCTAVES)))
+    elif kind == "ground_plane":
+        # The ground: d = b y + c, from 5 % of the range at the top row to 85 % at the bottom.
+        top, bottom = 0.05 * max_disp, 0.85 * max_disp
+        b = (bottom - top) / (height - 1)
+        surfaces.append(_Surface(0.0, b, top, ("full",), _random_texture(rng, _SMOOTH_OCTAVES, contrast=0.3)))
+        for row in np.linspace(0.45, 0.8, 3) * height:
+            # An upright object standing on the ground at ``row``: the ground's disparity there.
+            d = b * row + top
+            half_w = 0.5 * width * rng.uniform(0.1, 0.2)
+            half_h = 0.5 * height * rng.uniform(0.15, 0.3)
+            cx = rng.uniform(max(d + half_w, 0.15 * width), 0.85 * width)
+            support = ("rect", cx - half_w, row - 2 * half_h, cx + half_w, row)
+            surfaces.append(_Surface(0.0, 0.0, float(d), support, _random_texture(rng, _SMOOTH_OCTAVES)))
+    elif kind == "weak_texture":
+        box = (0.0, 0.0, float(width - 1), float(height - 1))
+        a, b, c = _slanted_plane(rng, box, 0.3 * max_disp, 0.3 * max_disp)
+        surfaces.append(_Surface(a, b, c, ("full",), _random_texture(rng, _SMOOTH_OCTAVES, contrast=0.05)))
+        for centre_d in (0.6, 0.8):
+            support = _random_support(rng, height, width, size_range=(0.15, 0.3))
+            a, b, c = _slanted_plane(rng, _support_box(support, height, width), centre_d * max_disp,
+                                     0.2 * max_disp)
+            surfaces.append(_Surface(a, b, c, support, _random_texture(rng, _SMOOTH_OCTAVES)))
     else:
         raise ValueError(f"unknown synthetic scene kind {kind!r}; expected one of {SCENE_KINDS}")
     return surfaces
@@ -346,7 +375,8 @@ def make_scene(kind: str, *, height: int | None = None, width: int | None = None
     height, width : int, optional
         Image size (>= 32); defaults 240 x 320 (640 wide for ``large_range``).
     max_disp : int, optional
-        Disparity search range; the layout is scaled to it.  Defaults: planes/slanted 32,
+        Disparity search range; the layout is scaled to it.  Defaults: planes/slanted/weak_texture 32,
+        ground_plane 48,
         textureless 24, fine_texture 16, large_range 128.
     seed : int
         Seed of the random layout, textures and noise; equal seeds give identical scenes.
