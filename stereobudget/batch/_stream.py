@@ -172,7 +172,7 @@ class _LeftFrames:
 def decode_stream(left: str, samples: str, *, disparity: str | None = None, preview: str | None = None,
                   right: str | None = None, max_disp=None, min_disp: int | None = None,
                   method: str | None = None, overwrite: bool = False, max_memory: int | None = None,
-                  disparity_format: str | None = None) -> Iterator[dict]:
+                  disparity_format: str | None = None, temporal: bool = True) -> Iterator[dict]:
     """Decode every frame of a stream of ``.sbs`` frames in this process; yield a summary per frame.
 
     Parameters
@@ -192,6 +192,12 @@ def decode_stream(left: str, samples: str, *, disparity: str | None = None, prev
     max_disp, min_disp, method, overwrite, max_memory, disparity_format
         As in :class:`~stereobudget.batch.DecodeJob`; ``max_disp="auto"`` estimates the
         range of every frame on its own.
+    temporal : bool
+        Each frame searches a band of disparities around the previous frame's
+        (``Decoder(temporal=True)``, :class:`stereobudget.decoding.TemporalSearch`); False:
+        every frame searches the whole range.  A frame of another size than the first is
+        then an error.  With a given ``max_disp`` the swapped / not rectified checks (the
+        range estimate) then run on the first frame only: one camera rig makes the stream.
 
     Yields
     ------
@@ -205,6 +211,11 @@ def decode_stream(left: str, samples: str, *, disparity: str | None = None, prev
     """
     from ..io._samples import read_samples
     from ._jobs import decode_arrays
+
+    decoder = None
+    if temporal:
+        from ..decoding._decoders import Decoder
+        decoder = Decoder(temporal=True)
 
     templates = {"disparity": disparity, "preview": preview, "right": right}
     lefts = _LeftFrames(left)
@@ -239,7 +250,7 @@ def decode_stream(left: str, samples: str, *, disparity: str | None = None, prev
         timings = {"read": time.perf_counter() - t}
         summary = decode_arrays(left_image, sample_set, job, left_name=display_name(left_path),
                                 samples_name=label, overwrite=replace, timings=timings, start=start,
-                                announce=index == 0)
+                                announce=index == 0, decoder=decoder, check_setup=not temporal or index == 0)
         summary["frame"] = index
         yield summary
     unused = lefts.unused(index + 1)

@@ -137,6 +137,14 @@ def _decode_stream(left, samples, templates: dict, *, as_json: bool, **options) 
     log.info("%d frame(s) in %.2f s (%.2f frames/s)", frames, seconds, frames / max(seconds, 1e-9))
 
 
+def _warm(ctx, _param, value):
+    """--warm: python -m stereobudget.warm in this installation, then exit."""
+    if not value or ctx.resilient_parsing:
+        return
+    from stereobudget.warm import main as warm_main
+    ctx.exit(warm_main([]))
+
+
 @click.command(context_settings={"help_option_names": ["-h", "--help"]})
 @click.argument("inputs", nargs=-1, metavar="LEFT SAMPLES")
 @click.option("--left-dir", metavar="DIR", default=None,
@@ -162,6 +170,10 @@ def _decode_stream(left, samples, templates: dict, *, as_json: bool, **options) 
 @click.option("--preview", metavar="OUT.png", default=None, help="Colour preview of the disparity (PNG).")
 @click.option("--right", metavar="OUT", default=None,
               help="Recovered right image (PNG/TIFF, the input's channels and bit depth; '-' = stdout).")
+@click.option("--temporal/--no-temporal", default=True, show_default=True,
+              help="A stream of frames: each frame searches a band of disparities around the previous "
+                   "frame's (the whole range on the first frame, a scene cut, or winners at the band's "
+                   "edge); --no-temporal decodes every frame on the whole range.")
 @click.option("--max-memory", metavar="SIZE", default=None,
               help="Refuse a pair whose decode would need more memory than SIZE (e.g. 8G, 500M).  "
                    "[default: 75 % of the available memory, or $STEREOBUDGET_MAX_MEMORY]")
@@ -170,9 +182,12 @@ def _decode_stream(left, samples, templates: dict, *, as_json: bool, **options) 
 @common.json_option
 @common.verbosity_options
 @common.version_option
+@click.option("--warm", is_flag=True, expose_value=False, is_eager=True, callback=_warm,
+              help="Compile every method's kernels now (two processes side by side), then exit; "
+                   "a first decode of any method then starts without compiling.")
 @common.handle_errors
 def decode_command(inputs, left_dir, samples_dir, manifest, max_disp, min_disp, method, disparity,
-                   disparity_format, preview, right, max_memory, jobs, scheduler, overwrite, as_json):
+                   disparity_format, preview, right, temporal, max_memory, jobs, scheduler, overwrite, as_json):
     """Recover the disparity of LEFT from the right camera's SAMPLES (.sbs).
 
     One of LEFT and SAMPLES may be '-' (standard input).  LEFT and SAMPLES may also be
@@ -231,7 +246,7 @@ def decode_command(inputs, left_dir, samples_dir, manifest, max_disp, min_disp, 
             raise OptionError("--json cannot be combined with an output on '-' (stdout carries the images)")
         _decode_stream(inputs[0], inputs[1], templates, max_disp=max_disp, min_disp=min_disp, method=method,
                        overwrite=overwrite, max_memory=max_memory, disparity_format=disparity_format,
-                       as_json=as_json)
+                       temporal=temporal, as_json=as_json)
         return
     templated = {name: has_template(value, f"--{name}") for name, value in templates.items()}
     pairs = _pairs_from_arguments(inputs, left_dir, samples_dir, manifest)

@@ -10,6 +10,7 @@ __getattr__, __dir__, __all__ = attach(__name__, {
     '_decoders': ['decode', 'Decoder', 'shared_decoder'],
     '_tiling': ['band_samples', 'DEFAULT_TILE_OVERLAP', 'MIN_TILE_ROWS', 'TILED_METHODS', 'auto_tile_rows', 'decode_tiled'],
     '_memory': ['decode_memory'],
+    '_temporal': ['TemporalParams', 'TemporalSearch'],
     '_methods': ['METHODS', 'DEFAULT_METHOD'],
     '_disprange': ['AUTO', 'RangeEstimate', 'estimate_disparity_range', 'is_auto', 'resolve_range'],
     '_checks': ['DecodeWarning', 'limit_shares', 'psnr_at_samples', 'setup_warnings', 'result_warnings'],
