@@ -9,7 +9,7 @@ import sys
 
 
 def run(code, *, env=None):
-    return subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300,
+    return subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=1800,
                           env=dict(os.environ, **(env or {})))
 
 

@@ -10,7 +10,7 @@ import sys
 
 def run(code_or_args, *, env=None, module=False):
     args = [sys.executable, "-m", *code_or_args] if module else [sys.executable, "-c", code_or_args]
-    return subprocess.run(args, capture_output=True, text=True, timeout=300, env=dict(os.environ, **(env or {})))
+    return subprocess.run(args, capture_output=True, text=True, timeout=1800, env=dict(os.environ, **(env or {})))
 
 
 def test_bash_completion_of_options_and_choices():
