@@ -139,12 +139,19 @@ def stream_table(frames, *, width, height, max_disp, repeats, count):
             (folder / f"camera{n}.raw").write_bytes(b"".join(np.ascontiguousarray(r).tobytes()
                                                              for _, r, _, _ in frames[:n]))
         size = f"{width}x{height}"
-        per_frame = {True: [], False: []}
+        per_frame = {True: [], False: [], "sgbm": []}
+        matcher = sgbm_matcher(max_disp)
+        pairs = [(cv2.cvtColor(left, cv2.COLOR_RGB2BGR), cv2.cvtColor(right, cv2.COLOR_RGB2BGR))
+                 for left, right, _, _ in frames]
         for _ in range(repeats):
             for temporal in (True, False):
                 short = stream_run(folder, size, 5, temporal, max_disp)
                 long = stream_run(folder, size, count, temporal, max_disp)
                 per_frame[temporal].append((long - short) / (count - 5))
+            for left, right in pairs:          # SGBM on the same frames, between the runs
+                t = time.perf_counter()
+                matcher.compute(left, right)
+                per_frame["sgbm"].append(time.perf_counter() - t)
     return {k: statistics.median(v) for k, v in per_frame.items()}
 
 
@@ -227,19 +234,21 @@ def main(argv=None):
     parser.add_argument("--sizes", default="640x480,450x375")
     parser.add_argument("--profile", action="store_true", help="print the stages of one decode and stop")
     parser.add_argument("--no-stream", action="store_true", help="only the in-process table")
+    parser.add_argument("--no-in-process", action="store_true", help="only the stream table")
     args = parser.parse_args(argv)
     sizes = [tuple(int(v) for v in s.split("x")) for s in args.sizes.split(",")]
     if args.profile:
         for width, height in sizes:
             profile(width, height, args.max_disp, args.repeats)
         return 0
-    print(f"In process, median (mean) ms per frame over {args.repeats} passes of {args.frames} frames; "
-          f"bad > 1 px % (non-occluded) mean over frames\n")
-    print("| frame | stream | SGBM 3WAY | full range | temporal | full / SGBM | temporal / SGBM "
-          "| bad SGBM | bad full | bad temporal | temporal frames |")
-    print("|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---|")
+    if not args.no_in_process:
+        print(f"In process, {args.max_disp + 1} disparities, median (mean) ms per frame over {args.repeats} "
+              f"passes of {args.frames} frames; bad > 1 px % (non-occluded) mean over frames\n")
+        print("| frame | stream | SGBM 3WAY | full range | temporal | full / SGBM | temporal / SGBM "
+              "| bad SGBM | bad full | bad temporal | temporal frames |")
+        print("|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---|")
     makers = {"coherent": coherent_frames, "unrelated": unrelated_frames}
-    for width, height in sizes:
+    for width, height in sizes if not args.no_in_process else ():
         for kind, make in makers.items():
             # Each stream its own length: the coherent one cuts at its middle.
             times, bad, reasons = in_process(make(width, height, args.frames), max_disp=args.max_disp,
@@ -253,15 +262,17 @@ def main(argv=None):
                   f"{', '.join(f'{k} {v // args.repeats}' for k, v in sorted(reasons.items()))} |", flush=True)
     if args.no_stream:
         return 0
-    print(f"\nStream (sb-encode | sb-decode), steady state ms per frame = (t{args.stream_frames} - t5) / "
-          f"{args.stream_frames - 5}, median of {args.repeats} alternating runs\n")
-    print("| frame | stream | --no-temporal | frames/s | --temporal | frames/s |\n|---|---|---:|---:|---:|---:|")
+    print(f"\nStream (sb-encode | sb-decode), {args.max_disp + 1} disparities, steady state ms per frame = "
+          f"(t{args.stream_frames} - t5) / {args.stream_frames - 5}, median of {args.repeats} alternating runs\n")
+    print("| frame | stream | --no-temporal | frames/s | --temporal | frames/s | SGBM 3WAY in process | "
+          "--temporal / SGBM |\n|---|---|---:|---:|---:|---:|---:|---:|")
     for width, height in sizes:
         for kind, make in makers.items():
             per_frame = stream_table(make(width, height, args.stream_frames), width=width, height=height,
                                      max_disp=args.max_disp, repeats=args.repeats, count=args.stream_frames)
             print(f"| {width}x{height} | {kind} | {1000 * per_frame[False]:.0f} | {1 / per_frame[False]:.1f} | "
-                  f"{1000 * per_frame[True]:.0f} | {1 / per_frame[True]:.1f} |", flush=True)
+                  f"{1000 * per_frame[True]:.0f} | {1 / per_frame[True]:.1f} | {1000 * per_frame['sgbm']:.1f} | "
+                  f"{per_frame[True] / per_frame['sgbm']:.1f}x |", flush=True)
     return 0
 
 
