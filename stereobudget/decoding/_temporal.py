@@ -6,6 +6,8 @@ range of disparities, plus a margin, instead of the whole ``min_disp..max_disp``
 fraction of a full decode.  The whole range is searched instead:
 
 * on the first frame, and after :meth:`TemporalSearch.reset`;
+* when the caller's whole range (which may change from frame to frame, as an estimated one
+  does) holds none of the previous frame's disparities; otherwise the band is cut to it;
 * on a scene cut: the previous frame's disparities no longer carry I1 onto the new samples
   (the samples' mismatch at the previous disparities is much larger than the previous frame's
   own), or the samples' brightness histogram has changed;
@@ -129,7 +131,6 @@ class TemporalSearch:
     def reset(self) -> None:
         """Forget the previous frame's disparities: the next frame searches the whole range."""
         self._band = None          # (low, high) percentiles of the last disparity
-        self._range = None         # the whole range the last frame was asked for
         self._mismatch = None
         self._histogram = None
         self._disparity = None
@@ -139,7 +140,8 @@ class TemporalSearch:
 
         Returns the :class:`~stereobudget.decoding.DecodeResult` of the frame, its
         ``stream`` holding ``frame`` (from 0), ``searched`` (the disparities decoded) and
-        ``reason`` (``"first"``, ``"cut"``, ``"range"`` (the whole range changed),
+        ``reason`` (``"first"``, ``"cut"``, ``"range"`` (the caller's whole range holds none
+        of the previous disparities),
         ``"wide"``, ``"band"``, or ``"edge"`` (a band decoded again on the whole range)).
 
         Raises
@@ -173,15 +175,13 @@ class TemporalSearch:
         searched = band or (min_disp, max_disp)
         result = replace(result, min_disp=min_disp, max_disp=max_disp,
                          stream={"frame": self.frame, "searched": searched, "reason": reason})
-        self._remember(result.disparity, histogram, left, gray_samples, (min_disp, max_disp))
+        self._remember(result.disparity, histogram, left, gray_samples)
         return result
 
     def _choose(self, histogram, left, gray_samples, min_disp, max_disp, full):
         p = self.params
         if self._band is None:
             return "first", None
-        if self._range != (min_disp, max_disp):
-            return "range", None
         if histogram is not None and self._histogram is not None \
                 and float(np.abs(histogram - self._histogram).sum()) > p.cut_histogram:
             return "cut", None
@@ -192,6 +192,9 @@ class TemporalSearch:
         margin = max(p.min_margin, int(math.ceil(p.margin * full)))
         low = max(min_disp, int(math.floor(self._band[0])) - margin)
         high = min(max_disp, int(math.ceil(self._band[1])) + margin)
+        if high - low < 2:
+            # The whole range moved away from the previous disparities (a caller's new range).
+            return "range", None
         if high - low + 1 > p.max_band * full:
             return "wide", None
         return "band", (low, high)
@@ -208,7 +211,7 @@ class TemporalSearch:
             count += int(np.count_nonzero(valid >= band[1] - 0.5))
         return count / valid.size
 
-    def _remember(self, disparity, histogram, left, gray_samples, whole):
+    def _remember(self, disparity, histogram, left, gray_samples):
         p = self.params
         valid = disparity[::2, ::2]
         valid = valid[np.isfinite(valid)]
@@ -217,7 +220,6 @@ class TemporalSearch:
             return
         low, high = np.percentile(valid, [p.percentile, 100.0 - p.percentile])
         self._band = (float(low), float(high))
-        self._range = whole
         self._histogram = histogram
         self._disparity = disparity
         self._mismatch = None if gray_samples is None else _mismatch(left, disparity, *gray_samples)

@@ -67,14 +67,18 @@ def test_a_stream_searches_a_band_and_the_whole_range_where_it_must(scenes):
         cut = decoder.decode(*crop(other, 0), max_disp=MAX_DISP)
         assert cut.stream["reason"] == "cut" and cut.stream["searched"] == (0, MAX_DISP)
 
-        # The caller's range changes: the whole new range.
+        # The caller's range changes (as an estimated one does): the band, cut to the new range...
         narrower = decoder.decode(*crop(other, 0), max_disp=32)
-        assert narrower.stream == {"frame": 4, "searched": (0, 32), "reason": "range"}
+        assert narrower.stream["reason"] == "band" and narrower.stream["searched"][1] <= 32
+        assert (narrower.min_disp, narrower.max_disp) == (0, 32)
+        # ... unless the new range holds none of the previous disparities.
+        away = decoder.decode(*crop(other, 0), min_disp=30, max_disp=40)
+        assert away.stream == {"frame": 5, "searched": (30, 40), "reason": "range"}
 
         # Another frame size: an error naming the frame; reset() starts a new stream.
         small = make_scene("slanted", height=40, width=64, max_disp=8, seed=5)
         samples = encode_image(small.right, pattern=GRID)
-        with pytest.raises(MismatchError, match="frame 5 is 64x40, the stream's frames are 112x72"):
+        with pytest.raises(MismatchError, match="frame 6 is 64x40, the stream's frames are 112x72"):
             decoder.decode(small.left, samples, max_disp=8)
         decoder.reset()
         assert decoder.decode(small.left, samples, max_disp=8).stream["reason"] == "first"
