@@ -138,6 +138,14 @@ def _decode_stream(left, samples, templates: dict, *, as_json: bool, **options) 
     log.info("%d frame(s) in %.2f s (%.2f frames/s)", frames, seconds, frames / max(seconds, 1e-9))
 
 
+def _warm(ctx, _param, value):
+    """--warm: python -m stereobudget.warm in this installation, then exit."""
+    if not value or ctx.resilient_parsing:
+        return
+    from stereobudget.warm import main as warm_main
+    ctx.exit(warm_main([]))
+
+
 @click.command(context_settings={"help_option_names": ["-h", "--help"]})
 @click.argument("inputs", nargs=-1, metavar="LEFT SAMPLES")
 @click.option("--left-dir", metavar="DIR", default=None,
@@ -181,6 +189,10 @@ def _decode_stream(left, samples, templates: dict, *, as_json: bool, **options) 
 @click.option("--frame", type=click.Choice(("rectified", "raw")), default=None,
               help="With --calibration: the pixel grid of --disparity, --preview and --depth: the rectified "
                    "left frame, or LEFT as given.  [default: disparity and preview rectified, depth raw]")
+@click.option("--temporal/--no-temporal", default=True, show_default=True,
+              help="A stream of frames: each frame searches a band of disparities around the previous "
+                   "frame's (the whole range on the first frame, a scene cut, or winners at the band's "
+                   "edge); --no-temporal decodes every frame on the whole range.")
 @click.option("--max-memory", metavar="SIZE", default=None,
               help="Refuse a pair whose decode would need more memory than SIZE (e.g. 8G, 500M).  "
                    "[default: 75 % of the available memory, or $STEREOBUDGET_MAX_MEMORY]")
@@ -189,10 +201,13 @@ def _decode_stream(left, samples, templates: dict, *, as_json: bool, **options) 
 @common.json_option
 @common.verbosity_options
 @common.version_option
+@click.option("--warm", is_flag=True, expose_value=False, is_eager=True, callback=_warm,
+              help="Compile every method's kernels now (two processes side by side), then exit; "
+                   "a first decode of any method then starts without compiling.")
 @common.handle_errors
 def decode_command(inputs, left_dir, samples_dir, manifest, max_disp, min_disp, method, disparity,
                    disparity_format, preview, right, warp_mode, no_enhance, calibration, depth, points, frame,
-                   max_memory, jobs, scheduler, overwrite, as_json):
+                   temporal, max_memory, jobs, scheduler, overwrite, as_json):
     """Recover the disparity of LEFT from the right camera's SAMPLES (.sbs).
 
     One of LEFT and SAMPLES may be '-' (standard input).  LEFT and SAMPLES may also be
@@ -261,7 +276,7 @@ def decode_command(inputs, left_dir, samples_dir, manifest, max_disp, min_disp, 
         _decode_stream(inputs[0], inputs[1], templates, max_disp=max_disp, min_disp=min_disp, method=method,
                        synthesis=synthesis,
                        overwrite=overwrite, max_memory=max_memory, disparity_format=disparity_format,
-                       as_json=as_json, **geometry)
+                       temporal=temporal, as_json=as_json, **geometry)
         return
     templated = {name: has_template(value, f"--{name}") for name, value in templates.items()}
     pairs = _pairs_from_arguments(inputs, left_dir, samples_dir, manifest)

@@ -17,8 +17,8 @@ README = Path(__file__).resolve().parents[1] / "README.md"
 def test_readme_python_example(tmp_path, monkeypatch):
     from stereobudget.demo import write_demo_pair
 
-    monkeypatch.chdir(tmp_path)
-    write_demo_pair("demo")
+    write_demo_pair(tmp_path / "demo")
+    monkeypatch.chdir(tmp_path / "demo")     # the example runs in the demo folder
     result = doctest.testfile(str(README), module_relative=False, optionflags=doctest.ELLIPSIS,
                               raise_on_error=False, verbose=False)
     assert result.attempted >= 10 and result.failed == 0, result

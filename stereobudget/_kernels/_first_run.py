@@ -1,17 +1,25 @@
-"""Whether the numba kernels still have to be compiled: the "first run only" notice.
+"""Whether the numba kernels still have to be compiled: the "first use" notice.
 
 Every kernel is ``njit(cache=True)``: numba compiles it on first use and keeps the
 machine code in a cache (``__pycache__`` beside the module, or ``$NUMBA_CACHE_DIR``),
 checked against the module's source file.  After an install or an upgrade the cache is
-empty and the first decode spends minutes compiling, silently; :func:`kernels_cached`
-looks at the cache index of the kernels the decoders use, so the command line
-can say so before it starts.
+empty and the first decode of each method spends minutes compiling.  Two notices say so:
+
+* :func:`kernels_cached` looks at the cache index of the kernels the decoders use, so the
+  command line can say so before it starts (:func:`announce_first_compile`);
+* :func:`compile_notice` listens, while a decode runs, for numba actually compiling (a
+  cache miss, whatever the method or the input's type) and says so at the first one.
+
+Either says it once per process.  ``python -m stereobudget.warm`` compiles every method's
+kernels ahead (:mod:`stereobudget.warm`).
 """
 
 from __future__ import annotations
 
+import contextlib
 import importlib
 import logging
+import threading
 
 log = logging.getLogger("stereobudget")
 
@@ -22,6 +30,13 @@ PROBE_MODULES = ("stereobudget.aggregate._tree", "stereobudget.aggregate._semigl
 #: CPU on the project's 2-core machine (numba compiles on one thread), measured with an
 #: empty NUMBA_CACHE_DIR.
 COMPILE_SECONDS = 300
+#: Wall time of each method's first ``sb-decode`` (8-bit RGB, 640x480, ``--max-disp 64``) on
+#: the project's 2-core machine, one after another from an empty cache in this order (a later
+#: method reuses the kernels an earlier one compiled): see docs/performance.md.
+METHOD_COMPILE_SECONDS = {"hybrid": 220, "sparse": 45, "downsample": 125, "full": 25, "range": 20}
+WARM_COMMAND = "python -m stereobudget.warm"
+
+_announced = threading.Event()
 
 
 def _dispatchers(module):
@@ -57,9 +72,70 @@ def announce_first_compile(emit=None) -> bool:
     """
     if kernels_cached() is not False:
         return False
-    text = f"compiling kernels, first run only, ~{COMPILE_SECONDS} s"
+    text = (f"compiling kernels, first run only, ~{COMPILE_SECONDS} s "
+            f"({WARM_COMMAND} compiles every method's at once)")
     (emit or log.warning)(text)
+    _announced.set()
     return True
 
 
-__all__ = ["PROBE_MODULES", "COMPILE_SECONDS", "kernels_cached", "announce_first_compile"]
+def _compile_text(method):
+    seconds = METHOD_COMPILE_SECONDS.get(method, COMPILE_SECONDS)
+    what = ("the range estimate's kernels" if method == "range" else
+            f"the {method} decoder's kernels" if method else "kernels")
+    return (f"compiling {what} (first use after an install), ~{seconds} s on a 2-core machine; "
+            f"{WARM_COMMAND} compiles every method's at once")
+
+
+def _listener(method, emit):
+    """A numba compile listener that gives the notice at its first start event."""
+    from numba.core import event
+
+    class Listener(event.Listener):
+        def on_start(self, _event):
+            if not _announced.is_set():
+                _announced.set()
+                (emit or log.warning)(_compile_text(method))
+
+        def on_end(self, _event):
+            pass
+
+    return Listener()
+
+
+_active = threading.local()
+
+
+@contextlib.contextmanager
+def compile_notice(method: str | None = None, emit=None):
+    """While the block runs, say once per process when numba starts compiling a kernel.
+
+    numba fires ``numba:compile`` only on a cache miss, so this speaks whenever
+    compiling really happens (any method, any input type), and never when the kernels
+    load from the cache.  Nested blocks listen once.  ``emit`` as in
+    :func:`announce_first_compile`.
+    """
+    if getattr(_active, "depth", 0) or _announced.is_set():
+        _active.depth = getattr(_active, "depth", 0) + 1
+        try:
+            yield
+        finally:
+            _active.depth -= 1
+        return
+    try:
+        from numba.core import event
+        listener = _listener(method, emit)
+        event.register("numba:compile", listener)
+    except Exception:  # noqa: BLE001 -- numba without the event API: no notice rather than a failure
+        listener = None
+    _active.depth = 1
+    try:
+        yield
+    finally:
+        _active.depth = 0
+        if listener is not None:
+            event.unregister("numba:compile", listener)
+
+
+__all__ = ["PROBE_MODULES", "COMPILE_SECONDS", "METHOD_COMPILE_SECONDS", "WARM_COMMAND", "kernels_cached",
+           "announce_first_compile", "compile_notice"]

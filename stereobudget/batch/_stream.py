@@ -177,8 +177,8 @@ def decode_stream(left: str, samples: str, *, disparity: str | None = None, prev
                   right: str | None = None, max_disp=None, min_disp: int | None = None,
                   method: str | None = None, overwrite: bool = False, max_memory: int | None = None,
                   disparity_format: str | None = None, synthesis: dict | None = None, depth: str | None = None,
-                  points: str | None = None, calibration: str | None = None,
-                  frame: str | None = None) -> Iterator[dict]:
+                  points: str | None = None, calibration: str | None = None, frame: str | None = None,
+                  temporal: bool = True) -> Iterator[dict]:
     """Decode every frame of a stream of ``.sbs`` frames in this process; yield a summary per frame.
 
     Parameters
@@ -201,6 +201,12 @@ def decode_stream(left: str, samples: str, *, disparity: str | None = None, prev
     depth, points, calibration, frame
         As in :class:`~stereobudget.pipeline.DecodeJob`; the calibration is read and its
         rectification maps computed for the first frame, then reused.
+    temporal : bool
+        Each frame searches a band of disparities around the previous frame's
+        (``Decoder(temporal=True)``, :class:`stereobudget.decoding.TemporalSearch`); False:
+        every frame searches the whole range.  A frame of another size than the first is
+        then an error.  With a given ``max_disp`` the swapped / not rectified checks (the
+        range estimate) then run on the first frame only: one camera rig makes the stream.
 
     Yields
     ------
@@ -213,6 +219,11 @@ def decode_stream(left: str, samples: str, *, disparity: str | None = None, prev
         The first problem, naming its frame; earlier frames have been written.
     """
     from ..io._samples import read_samples
+
+    decoder = None
+    if temporal:
+        from ..decoding._decoders import Decoder
+        decoder = Decoder(temporal=True)
 
     templates = {"disparity": disparity, "preview": preview, "right": right, "depth": depth, "points": points}
     lefts = _LeftFrames(left)
@@ -256,7 +267,7 @@ def decode_stream(left: str, samples: str, *, disparity: str | None = None, prev
         timings = {"read": time.perf_counter() - t}
         summary = decode_arrays(left_image, sample_set, job, left_name=display_name(left_path),
                                 samples_name=label, overwrite=replace, timings=timings, start=start,
-                                announce=index == 0)
+                                announce=index == 0, decoder=decoder, check_setup=not temporal or index == 0)
         summary["frame"] = index
         yield summary
     unused = lefts.unused(index + 1)

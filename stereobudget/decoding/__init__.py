@@ -11,6 +11,7 @@ __getattr__, __dir__, __all__ = attach(__name__, {
     '_decoders': ['decode', 'Decoder', 'shared_decoder'],
     '_tiling': ['band_samples', 'DEFAULT_TILE_OVERLAP', 'MIN_TILE_ROWS', 'auto_tile_rows', 'decode_tiled'],
     '_memory': ['estimate_decode_memory', 'check_decode_memory', 'decode_memory'],
+    '_temporal': ['TemporalParams', 'TemporalSearch'],
     '_methods': ['MethodRecord', 'METHOD_RECORDS', 'METHODS', 'DEFAULT_METHOD', 'TILED_METHODS'],
     '_disprange': ['AUTO', 'RangeEstimate', 'estimate_disparity_range', 'is_auto', 'resolve_range', 'top_share',
                    'widened_max'],

@@ -23,6 +23,8 @@ import numpy as np
 
 from ..io._samples import SampleSet
 from .._kernels import _scratch as scratch
+from .._kernels._first_run import compile_notice
+from ._methods import DEFAULT_METHOD
 from ._frame import decode_frame
 from ._params import DecodeResult, DecoderParams, check_inputs, resolve_method  # noqa: F401  (check_inputs: batch)
 from ._tiling import DEFAULT_TILE_OVERLAP, auto_tile_rows, decode_tiled
@@ -76,7 +78,7 @@ def decode(left: np.ndarray, samples: SampleSet, *, max_disp: int, min_disp: int
     returns, and the C allocator keeps its settings.  A sequence of decodes is faster when
     each takes over the previous one's memory; :class:`Decoder` opts in to that.
     """
-    with scratch.in_use():
+    with scratch.in_use(), compile_notice(method or DEFAULT_METHOD):
         # The noise adaptation waits for I1's gray image (made in decode_frame anyway); a
         # tiled decode adapts on the whole frame in decode_tiled.
         method, params = resolve_method(left, samples, method=method, params=params,
@@ -112,6 +114,12 @@ class Decoder:
         is a process-wide setting which stays after :meth:`close` (glibc cannot restore its
         adaptive threshold); ``False`` keeps only the volumes.
         ``STEREOBUDGET_KEEP_FREED_MEMORY=0`` turns it and the large volumes off either way.
+    temporal : bool or TemporalParams
+        The decodes are the frames of one stream, in order: each searches only a band of
+        disparities around the previous frame's, and the whole ``min_disp..max_disp`` on the
+        first frame, after a scene cut, and where the band's winners sit at its edge
+        (:class:`stereobudget.decoding.TemporalSearch`; :meth:`reset` starts a new stream).
+        A frame of another size than the first is an error.  ``TemporalParams`` tunes it.
 
     Notes
     -----
@@ -128,10 +136,21 @@ class Decoder:
     ...         disparity = decoder.decode(left, samples, max_disp=64).disparity
     """
 
-    def __init__(self, *, keep_freed_memory: bool = True):
+    def __init__(self, *, keep_freed_memory: bool = True, temporal=False):
         self.keep_freed_memory = bool(keep_freed_memory)
         self._open = False
         self._lock = threading.Lock()
+        self._temporal = None
+        if temporal:
+            from ._temporal import TemporalParams, TemporalSearch
+            self._temporal = TemporalSearch(temporal if isinstance(temporal, TemporalParams) else None)
+
+    def reset(self) -> None:
+        """A temporal Decoder: the next decode is the first frame of a new stream (any size)."""
+        if self._temporal is not None:
+            self._temporal.reset()
+            self._temporal.shape = None
+            self._temporal.frame = -1
 
     @property
     def is_open(self) -> bool:
@@ -163,8 +182,13 @@ class Decoder:
         self.close()
 
     def decode(self, left: np.ndarray, samples: SampleSet, **options) -> DecodeResult:
-        """:func:`decode` (same arguments and result) on the memory of this Decoder's earlier decodes."""
+        """:func:`decode` (same arguments and result) on the memory of this Decoder's earlier decodes.
+
+        A temporal Decoder needs ``max_disp`` (an integer) and fills the result's ``stream``.
+        """
         self.open()
+        if self._temporal is not None:
+            return self._temporal.decode(decode, left, samples, **options)
         return decode(left, samples, **options)
 
 

@@ -553,7 +553,9 @@ def resolve_range(left: np.ndarray, samples, *, max_disp=None, min_disp=None):
     (min_disp, max_disp, estimate) : (int, int, RangeEstimate)
         The estimate is made in every case: the setup checks read it.
     """
-    estimate = estimate_disparity_range(left, samples)
+    from .._kernels._first_run import compile_notice
+    with compile_notice("range"):
+        estimate = estimate_disparity_range(left, samples)
     if is_auto(max_disp):
         low = estimate.min_disp if min_disp is None else int(min_disp)
         high = estimate.max_disp

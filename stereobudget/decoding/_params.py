@@ -194,6 +194,12 @@ class DecodeResult:
     min_disp, max_disp : int
     timings : dict
         Seconds per stage.
+    params : DecoderParams
+        The parameters used (after the noise adaptation).
+    stream : dict
+        Empty, except from a ``Decoder(temporal=True)``: the frame's number from 0
+        (``frame``), the disparities it searched (``searched``, a pair) and why
+        (``reason``, see :class:`stereobudget.decoding.TemporalSearch`).
     """
 
     disparity: np.ndarray
@@ -202,6 +208,7 @@ class DecodeResult:
     max_disp: int
     timings: dict = field(default_factory=dict)
     params: DecoderParams = field(default_factory=DecoderParams)
+    stream: dict = field(default_factory=dict)
 
     def summary(self) -> dict:
         return {"method": self.method, "min_disp": self.min_disp, "max_disp": self.max_disp,

@@ -250,13 +250,17 @@ def decode_file(job: DecodeJob, *, after_write: AfterWrite | None = None) -> dic
 
 def decode_arrays(left, samples, job: DecodeJob, *, left_name: str, samples_name: str, overwrite: bool,
                   timings: dict, start: float, after_write: AfterWrite | None = None,
-                  announce: bool = False) -> dict:
+                  announce: bool = False, decoder=None, check_setup: bool = True) -> dict:
     """The part of :func:`decode_file` after reading: decode ``left`` + ``samples``, write ``job``'s outputs.
 
     The outputs have been checked (``overwrite`` is the flag to write them with);
     ``timings`` holds the stages so far and ``start`` the job's start
     (``time.perf_counter``).  ``announce`` says before the first kernel runs that numba
-    may compile for minutes.  Returns the summary of :func:`decode_file`.
+    may compile for minutes.  ``decoder``: the :class:`~stereobudget.decoding.Decoder` to
+    decode with (a stream's temporal one; default the process's shared one).
+    ``check_setup=False`` with a given ``max_disp`` skips the range estimate, which then only
+    serves the swapped / not rectified warnings (a stream checks its first frame).  Returns
+    the summary of :func:`decode_file`.
     """
     from ..io import _images as imageio
     outputs = job.outputs
@@ -271,6 +275,7 @@ def decode_arrays(left, samples, job: DecodeJob, *, left_name: str, samples_name
     t = time.perf_counter()
     from ..decoding import _checks as checks
     from ..decoding import _disprange as disprange
+    from .._kernels._first_run import compile_notice
     auto = disprange.is_auto(job.max_disp)
     raw_left, raw_samples = left, samples
     rectification = None
@@ -295,8 +300,13 @@ def decode_arrays(left, samples, job: DecodeJob, *, left_name: str, samples_name
             from .._kernels._first_run import announce_first_compile
             announce_first_compile()
         t = time.perf_counter()
-        min_disp, max_disp, estimate = disprange.resolve_range(left, samples, max_disp=job.max_disp,
-                                                               min_disp=job.min_disp)
+        if auto or check_setup:
+            with compile_notice(job.method or DEFAULT_METHOD):    # names the method, not the range estimate
+                min_disp, max_disp, estimate = disprange.resolve_range(left, samples, max_disp=job.max_disp,
+                                                                       min_disp=job.min_disp)
+        else:
+            min_disp, max_disp, estimate = (0 if job.min_disp is None else int(job.min_disp),
+                                            int(job.max_disp), None)
         timings["estimate_range"] = time.perf_counter() - t
         decoders.check_inputs(left, samples, min_disp=min_disp, max_disp=max_disp)
     except (MismatchError, OptionError) as exc:
@@ -308,13 +318,16 @@ def decode_arrays(left, samples, job: DecodeJob, *, left_name: str, samples_name
     method = job.method or DEFAULT_METHOD
     try:
         # A process that decodes file after file: each decode takes over the last one's memory.
-        result = decoders.shared_decoder().decode(left, samples, max_disp=max_disp, min_disp=min_disp,
-                                                  method=method, max_memory=job.max_memory)
+        result = (decoder or decoders.shared_decoder()).decode(left, samples, max_disp=max_disp,
+                                                               min_disp=min_disp, method=method,
+                                                               max_memory=job.max_memory)
     except MemoryLimitError as exc:
         raise MemoryLimitError(exc.message, path=left_name) from None
     except OptionError as exc:
         # What the sample file does not allow (a stride-1 Bayer mosaic, --method against its pattern).
         raise OptionError(exc.message, path=exc.path or samples_name) from None
+    except MismatchError as exc:
+        raise MismatchError(f"{exc.message} ({samples_name})", path=left_name) from None
     widened_from = None
     if auto:
         # An estimate built from few confident samples on the nearest surfaces falls
@@ -327,8 +340,9 @@ def decode_arrays(left, samples, job: DecodeJob, *, left_name: str, samples_name
                      min_disp, max_disp, min_disp, wider)
             timings.update({f"{k}_first_range": v for k, v in result.timings.items()})
             try:
-                result = decoders.shared_decoder().decode(left, samples, max_disp=wider, min_disp=min_disp,
-                                                          method=method, max_memory=job.max_memory)
+                result = (decoder or decoders.shared_decoder()).decode(left, samples, max_disp=wider,
+                                                                       min_disp=min_disp, method=method,
+                                                                       max_memory=job.max_memory)
                 widened_from, max_disp = max_disp, wider
             except MemoryLimitError:
                 log.info("%s: the wider range does not fit the memory limit; keeping %d..%d", left_name,
@@ -351,7 +365,7 @@ def decode_arrays(left, samples, job: DecodeJob, *, left_name: str, samples_name
         disparity, min_disp=min_disp, max_disp=max_disp, psnr=psnr, auto_range=auto,
         # A flat pair matches itself anywhere: no_texture says it, not left_is_samples.
         zero_psnr=(checks.psnr_at_zero_disparity(left, samples)
-                   if estimate.textured_fraction >= checks.MIN_TEXTURED_SHARE else None))
+                   if estimate is None or estimate.textured_fraction >= checks.MIN_TEXTURED_SHARE else None))
     timings["checks"] = time.perf_counter() - t
 
     t = time.perf_counter()
@@ -404,7 +418,8 @@ def decode_arrays(left, samples, job: DecodeJob, *, left_name: str, samples_name
         "stride_y": raw_samples.pattern.stride_y, "codec": raw_samples.codec,
         "value_bits": raw_samples.value_bits or 8 * raw_samples.values.dtype.itemsize,
         "method": result.method, "min_disp": int(min_disp), "max_disp": int(max_disp),
-        "range_source": "estimated" if auto else "given", "range_estimate": estimate.summary(),
+        "range_source": "estimated" if auto else "given",
+        "range_estimate": None if estimate is None else estimate.summary(),
         "range_widened_from": widened_from,
         "psnr_at_samples": psnr if math.isfinite(psnr) else None,
         "warnings": [w.as_dict() for w in warnings],

@@ -23,7 +23,8 @@ def test_empty_kernel_cache_is_announced_once(tmp_path):
     assert fresh.returncode == 0, fresh.stderr
     assert fresh.stdout.split() == ["False", "True"]
     lines = fresh.stderr.splitlines()
-    assert len(lines) == 1 and lines[0].startswith("compiling kernels, first run only, ~") and lines[0].endswith(" s")
+    assert len(lines) == 1 and lines[0].startswith("compiling kernels, first run only, ~")
+    assert "python -m stereobudget.warm" in lines[0]
 
 
 def test_after_a_default_decode_the_kernels_count_as_cached():
@@ -36,3 +37,30 @@ def test_after_a_default_decode_the_kernels_count_as_cached():
     assert run(decode).returncode == 0
     probe = run("from stereobudget._kernels._first_run import kernels_cached; print(kernels_cached())")
     assert probe.returncode == 0 and probe.stdout.split() == ["True"], probe.stderr
+
+
+def test_compiling_during_a_decode_is_announced_once_naming_the_method():
+    # numba reports a compile only on a cache miss: a kernel made on the spot always compiles.
+    code = ("import logging, sys; logging.basicConfig(stream=sys.stderr, format='%(message)s');"
+            "from numba import njit; from stereobudget._kernels._first_run import compile_notice;"
+            "f = njit(lambda x: x + 1); g = njit(lambda x: x + 2); h = njit(lambda x: x + 3);"
+            "h(1);"                                   # outside a decode: nothing said
+            "cm = compile_notice('sparse'); cm.__enter__(); f(1); g(1); cm.__exit__(None, None, None);"
+            "cm = compile_notice('hybrid'); cm.__enter__(); g(2.0); cm.__exit__(None, None, None)")
+    out = run(code)
+    assert out.returncode == 0, out.stderr
+    lines = out.stderr.splitlines()
+    assert len(lines) == 1, lines
+    assert lines[0].startswith("compiling the sparse decoder's kernels (first use after an install), ~")
+    assert "python -m stereobudget.warm" in lines[0]
+
+
+def test_loading_cached_kernels_says_nothing():
+    decode = ("import logging, sys; logging.basicConfig(stream=sys.stderr, format='%(message)s');"
+              "from stereobudget import decode; from stereobudget.encoding import encode_image;"
+              "from stereobudget.sampling import SamplingPattern; from stereobudget.scenes import make_scene;"
+              "s = make_scene('slanted', height=48, width=64, max_disp=8);"
+              "decode(s.left, encode_image(s.right, pattern=SamplingPattern('grid', 5, 5)), max_disp=8)")
+    assert run(decode).returncode == 0          # compiles what is missing
+    again = run(decode)
+    assert again.returncode == 0 and "compiling" not in again.stderr, again.stderr

@@ -117,3 +117,27 @@ def test_a_budget_stream_writes_what_one_budget_file_at_a_time_writes(frames):
                                raw_size=(96, 64), pix_fmt="rgb24", overwrite=True, coding=coding))
     assert list(sample_frames(stream)) == singles
     assert all(item["file_size"] <= 900 for item in items)
+
+
+def test_a_frame_of_another_size_ends_a_temporal_stream_naming_the_frame(frames, tmp_path):
+    import cv2
+
+    from stereobudget.scenes import make_scene
+
+    small = make_scene("slanted", height=40, width=64, max_disp=8, seed=5)
+    (tmp_path / "L").mkdir()
+    (tmp_path / "L" / "0.png").write_bytes((frames / "L" / "0.png").read_bytes())
+    assert cv2.imwrite(str(tmp_path / "L" / "1.png"), np.ascontiguousarray(small.left[:, :, ::-1]))
+    assert cv2.imwrite(str(tmp_path / "r1.png"), np.ascontiguousarray(small.right[:, :, ::-1]))
+    encode_file(frames / "r0.png", tmp_path / "s0.sbs", pattern=GRID)
+    encode_file(tmp_path / "r1.png", tmp_path / "s1.sbs", pattern=GRID)
+    stream = tmp_path / "sizes.sbs"
+    stream.write_bytes((tmp_path / "s0.sbs").read_bytes() + (tmp_path / "s1.sbs").read_bytes())
+    with pytest.raises(MismatchError, match="frame 1 is 64x40, the stream's frames are 96x64 .*sizes.sbs.*frame 1"):
+        list(decode_stream(str(tmp_path / "L" / "{index}.png"), str(stream), max_disp=16,
+                           disparity=str(tmp_path / "D" / "{index}.pfm")))
+    assert sorted(p.name for p in (tmp_path / "D").iterdir()) == ["0.pfm"]
+    # Frames decoded each on its own may change size.
+    items = list(decode_stream(str(tmp_path / "L" / "{index}.png"), str(stream), max_disp=16, temporal=False,
+                               disparity=str(tmp_path / "E" / "{index}.pfm")))
+    assert [item["width"] for item in items] == [96, 64]

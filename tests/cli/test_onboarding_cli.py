@@ -13,7 +13,7 @@ def run(code_or_args, *, env=None, module=False):
     args = [sys.executable, "-m", *code_or_args] if module else [sys.executable, "-c", code_or_args]
     # Away from the repository root, whose source folder would shadow the installed package
     # (the commands install as stereobudget.cli from the top-level cli/ folder).
-    return subprocess.run(args, capture_output=True, text=True, timeout=300, env=dict(os.environ, **(env or {})),
+    return subprocess.run(args, capture_output=True, text=True, timeout=1800, env=dict(os.environ, **(env or {})),
                           cwd=tempfile.gettempdir())
 
 

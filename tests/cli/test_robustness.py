@@ -608,7 +608,7 @@ def test_estimate_bounds_the_measured_peak():
     h, w, nd = 240, 320, 48
     cases = [("hybrid", 3, "jitter"), ("full", 1, "grid")]
     proc = subprocess.run([sys.executable, "-c", _PEAK_CHILD, json.dumps([h, w, nd, cases])],
-                          capture_output=True, text=True, timeout=300)
+                          capture_output=True, text=True, timeout=1800)
     assert proc.returncode == 0, proc.stderr[-2000:]
     for (method, stride, _), measured in zip(cases, json.loads(proc.stdout.strip().splitlines()[-1])):
         estimate = estimate_decode_memory(h, w, nd, method, stride_x=stride, stride_y=stride)

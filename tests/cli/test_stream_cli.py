@@ -78,7 +78,7 @@ def test_stream_option_errors(camera, args, code, fragment):
     if not (camera / "stream.sbs").exists():
         test_stream_file_to_indexed_outputs_with_json_lines(camera)
     run = subprocess.run([*command("decode"), *args, "--max-disp", "16"], cwd=camera, capture_output=True,
-                         text=True, stdin=subprocess.DEVNULL, timeout=300)
+                         text=True, stdin=subprocess.DEVNULL, timeout=1800)
     assert run.returncode == code and fragment in run.stderr and "Traceback" not in run.stderr, run.stderr
 
 

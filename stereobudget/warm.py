@@ -1,0 +1,107 @@
+"""Compile every decoder's kernels now, so that no method's first decode waits for them.
+
+``python -m stereobudget.warm`` decodes a small synthetic pair with every method (the range
+estimate, the decode, the check of the result against the samples and the recovered right
+image, as ``sb-decode`` runs them), in two processes side by side by default so that numba
+(which compiles on one thread) uses two cores.  numba keeps the compiled kernels in its
+cache (``__pycache__`` beside the package, or ``$NUMBA_CACHE_DIR``); a later run finds them
+there and returns in seconds.
+
+    python -m stereobudget.warm                 # every method, 8-bit RGB and gray input
+    python -m stereobudget.warm --methods hybrid --jobs 1
+"""
+
+from __future__ import annotations
+
+import argparse
+import logging
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+from .decoding._methods import METHODS
+
+#: Methods by process when warming on two: each group about half of the compile time
+#: (docs/performance.md has the figures), the methods that share kernels together.
+GROUPS = (("hybrid",), ("downsample", "sparse", "full"))
+KINDS = ("rgb", "gray")
+
+
+def warm_method(method: str, *, kinds=KINDS) -> float:
+    """Run every kernel ``sb-decode --method METHOD`` runs, on tiny pairs; returns the seconds taken."""
+    from .decoding import Decoder
+    from .decoding._checks import psnr_at_samples
+    from .decoding._disprange import resolve_range
+    from .encoding import encode_image
+    from .sampling._patterns import SamplingPattern
+    from .scenes._scenes import make_scene
+    from .pipeline._jobs import recover_right_image
+    from ._kernels import _first_run
+
+    _first_run._announced.set()       # compiling is what was asked for: no first-use notice
+
+    start = time.perf_counter()
+    pattern = {"full": SamplingPattern("grid", 1, 1), "downsample": SamplingPattern("downsample", 4, 4)}.get(
+        method, SamplingPattern("grid", 5, 5))
+    for kind in kinds:
+        # Large enough (24576 pixels) for the tree walks' two-thread paths, which a small
+        # image does not take and a camera frame does.
+        scene = make_scene("slanted", height=128, width=192, max_disp=8, gray=kind == "gray")
+        samples = encode_image(scene.right, pattern=pattern)
+        min_disp, max_disp, _ = resolve_range(scene.left, samples, max_disp=8)
+        with Decoder(keep_freed_memory=False) as decoder:
+            result = decoder.decode(scene.left, samples, max_disp=max_disp, min_disp=min_disp, method=method)
+        psnr_at_samples(scene.left, result.disparity, samples)
+        recover_right_image(scene.left, result.disparity, samples)
+    return time.perf_counter() - start
+
+
+def warm(methods=METHODS, *, jobs: int = 2, kinds=KINDS, report=print) -> float:
+    """Compile the kernels of ``methods`` (``jobs`` processes); returns the wall seconds taken."""
+    methods = [m for m in METHODS if m in methods]
+    start = time.perf_counter()
+    if jobs <= 1 or len(methods) < 2:
+        for method in methods:
+            report(f"{method}: {warm_method(method, kinds=kinds):.1f} s")
+        return time.perf_counter() - start
+    groups = [[m for m in group if m in methods] for group in GROUPS]
+    groups = [g for g in groups if g]
+    other = [m for m in methods if not any(m in g for g in groups)]
+    if other:
+        groups[-1].extend(other)
+    # The child runs beside this package's folder, so that it imports this copy of the
+    # package (not one that its working directory would shadow it with) and fills its cache.
+    home = Path(__file__).resolve().parents[1]
+    children = [subprocess.Popen([sys.executable, "-m", "stereobudget.warm", "--jobs", "1", "--methods",
+                                  ",".join(group), "--kinds", ",".join(kinds)], cwd=home)
+                for group in groups[1:]]
+    for method in groups[0]:
+        report(f"{method}: {warm_method(method, kinds=kinds):.1f} s")
+    failed = [child.args for child in children if child.wait() != 0]
+    if failed:
+        raise RuntimeError(f"warming failed in {failed}")
+    return time.perf_counter() - start
+
+
+def main(argv=None) -> int:
+    parser = argparse.ArgumentParser(prog="python -m stereobudget.warm", description=__doc__.splitlines()[0])
+    parser.add_argument("--methods", default=",".join(METHODS), help="comma-separated (default: all)")
+    parser.add_argument("--kinds", default=",".join(KINDS), help="input kinds: rgb, gray (default: both)")
+    parser.add_argument("--jobs", type=int, default=2, help="processes compiling side by side (default 2)")
+    args = parser.parse_args(argv)
+    methods = [m.strip() for m in args.methods.split(",") if m.strip()]
+    unknown = sorted(set(methods) - set(METHODS))
+    if unknown:
+        parser.error(f"unknown method(s) {', '.join(unknown)}; expected {', '.join(METHODS)}")
+    logging.basicConfig(format="%(message)s", stream=sys.stderr)
+    print(f"compiling the kernels of {', '.join(methods)} unless cached (a few minutes once after an install, "
+          f"{max(1, args.jobs)} process(es))", file=sys.stderr, flush=True)
+    seconds = warm(methods, jobs=args.jobs, kinds=[k.strip() for k in args.kinds.split(",") if k.strip()],
+                   report=lambda text: print(text, file=sys.stderr, flush=True))
+    print(f"kernels of {', '.join(methods)} compiled or loaded in {seconds:.1f} s", file=sys.stderr)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
