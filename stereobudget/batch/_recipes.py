@@ -188,12 +188,30 @@ def recipe_difference(outputs, recipe: dict) -> str | None:
     return None
 
 
+def _drop_foreign_sidecar(path: str) -> None:
+    """Remove what stands at a sidecar's path if it is not a regular file (a FIFO, a link, a device).
+
+    The hidden sidecar is the batch's own file, so whatever took its place is replaced, not
+    refused as a user's output would be; a link is removed itself, never what it points to.
+    """
+    try:
+        info = os.lstat(path)
+    except OSError:
+        return
+    if not stat.S_ISREG(info.st_mode) and not stat.S_ISDIR(info.st_mode):
+        try:
+            os.unlink(path)
+        except OSError:
+            pass    # the write that follows says what is wrong
+
+
 def write_recipes(outputs, recipe: dict) -> None:
     """Record ``recipe`` beside every file output, with what was written (after the outputs were written)."""
     for out in outputs:
         if out is not None and out != STDIO:
             record = {**recipe, "output": _output_record(out)}
             data = (json.dumps(record, sort_keys=True, indent=1) + "\n").encode("utf-8")
+            _drop_foreign_sidecar(recipe_path(out))
             write_output_bytes(recipe_path(out), data, overwrite=True, fsync=False)
 
 
