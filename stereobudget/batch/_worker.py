@@ -17,6 +17,13 @@ run that no longer exists.  Two mechanisms, because neither is enough alone:
 
 Either way the worker takes the SIGTERM path: a running job unwinds (its temporary files
 are removed) and the worker exits without starting another.
+
+A worker asked to stop never goes back to the pool's queues.  Their locks are semaphores
+shared by all the workers, and a sibling stopped at the same moment may have left while
+holding one (SIGTERM found it idle, reading the next call or sending a result): a worker
+that then sent its unwound job's result, or asked for the next call, would wait on that
+lock for ever, and the batch with it, in its pool's shutdown.  So a job interrupted by
+SIGTERM ends the worker as soon as it has unwound (:func:`_run_in_worker`).
 """
 
 from __future__ import annotations
@@ -63,6 +70,10 @@ def _exit_worker(code: int) -> None:
     finalizers (plain :func:`os._exit`) would leave it to the resource tracker, which
     then prints a "leaked semaphore objects" warning on the user's terminal.
     """
+    global _job_running
+    # A further SIGTERM during the exit handlers comes back here (and straight to
+    # os._exit) instead of raising into them.
+    _job_running = False
     try:
         from multiprocessing import util
         util._exit_function()
@@ -95,6 +106,20 @@ def _in_job(flag: bool) -> None:
         # the parent gone, no one would read this file's result.
         _exit_worker(143)
     _job_running = flag
+
+
+def _run_in_worker(fn, job):
+    """``fn(job)`` in a pool worker; once SIGTERM has asked the worker to stop, leave after the job.
+
+    The job has unwound by then (its temporary files removed).  Its result is not sent: no
+    one is waiting for it, and the result queue's lock may be held by a sibling that is
+    gone (see the module's docstring).
+    """
+    try:
+        return fn(job)
+    finally:
+        if _terminating:
+            _exit_worker(143)
 
 
 def _worker_sigterm(signum, frame):
