@@ -70,10 +70,11 @@ def _run_local_pool(jobs: list, fn: Callable, workers: int, threads: int | None)
         if clean_exit:
             executor.shutdown(wait=True)
         else:
-            # Interrupted (Ctrl-C, SIGTERM, closed pipe): stop queued work, ask running
-            # workers to unwind (they delete their temporary files), then wait for them.
-            for future in pending:
-                future.cancel()
+            # Interrupted (Ctrl-C, SIGTERM, closed pipe): ask the workers to unwind (they
+            # delete their temporary files) and wait for them; queued work dies with them.
+            # The futures are not cancelled here: the pool's manager thread, finding its
+            # workers gone, sets an exception on every future it still holds, and a future
+            # cancelled from this thread makes it fail with InvalidStateError (a traceback).
             _stop_workers(list(getattr(executor, "_processes", {}).values()))
             executor.shutdown(wait=True, cancel_futures=True)
 

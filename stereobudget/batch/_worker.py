@@ -54,6 +54,8 @@ def _limit_numba_threads(threads: int | None) -> None:
 
 _job_running = False
 _terminating = False
+#: The worker is running its exit handlers.
+_leaving = False
 #: The worker's parent process and the batch's process (None outside a pool worker).
 _parent_pid: int | None = None
 _owner_pid: int | None = None
@@ -70,9 +72,11 @@ def _exit_worker(code: int) -> None:
     finalizers (plain :func:`os._exit`) would leave it to the resource tracker, which
     then prints a "leaked semaphore objects" warning on the user's terminal.
     """
-    global _job_running
-    # A further SIGTERM during the exit handlers comes back here (and straight to
-    # os._exit) instead of raising into them.
+    global _job_running, _leaving
+    # A further SIGTERM (the pool stops every worker once one has gone) must not cut the
+    # exit handlers short: a semaphore unlinked but not yet unregistered would make the
+    # resource tracker warn of a leak.
+    _leaving = True
     _job_running = False
     try:
         from multiprocessing import util
@@ -125,6 +129,8 @@ def _run_in_worker(fn, job):
 def _worker_sigterm(signum, frame):
     # Inside a job: unwind so atomic writers delete their temporary files.  Idle: just go.
     global _terminating
+    if _leaving:
+        return
     _terminating = True
     if _job_running:
         raise KeyboardInterrupt
