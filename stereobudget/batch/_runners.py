@@ -11,12 +11,13 @@ from __future__ import annotations
 import logging
 import os
 import sys
+import time
 from typing import Callable, Iterable, Iterator
 
 from ..io._atomic import STDIO
 from ..errors import OptionError
 from ..pipeline._jobs import DecodeJob, EncodeJob
-from ._worker import _worker_init
+from ._worker import _run_in_worker, _worker_init
 
 log = logging.getLogger("stereobudget")
 
@@ -50,7 +51,7 @@ def _run_local_pool(jobs: list, fn: Callable, workers: int, threads: int | None)
         queue = iter(jobs)
         # Submit a bounded window so an interrupt does not leave thousands of futures.
         for job in queue:
-            pending[executor.submit(fn, job)] = job
+            pending[executor.submit(_run_in_worker, fn, job)] = job
             if len(pending) >= 2 * workers:
                 break
         while pending:
@@ -63,22 +64,61 @@ def _run_local_pool(jobs: list, fn: Callable, workers: int, threads: int | None)
                     yield _crashed(job, exc)
                 nxt = next(queue, None)
                 if nxt is not None:
-                    pending[executor.submit(fn, nxt)] = nxt
+                    pending[executor.submit(_run_in_worker, fn, nxt)] = nxt
         clean_exit = True
     finally:
         if clean_exit:
             executor.shutdown(wait=True)
         else:
-            # Interrupted (Ctrl-C, SIGTERM, closed pipe): stop queued work, ask running
-            # workers to unwind (they delete their temporary files), then wait for them.
-            for future in pending:
-                future.cancel()
-            for process in list(getattr(executor, "_processes", {}).values()):
-                try:
-                    process.terminate()
-                except Exception:  # noqa: BLE001
-                    pass
+            # Interrupted (Ctrl-C, SIGTERM, closed pipe): ask the workers to unwind (they
+            # delete their temporary files) and wait for them; queued work dies with them.
+            # The futures are not cancelled here: the pool's manager thread, finding its
+            # workers gone, sets an exception on every future it still holds, and a future
+            # cancelled from this thread makes it fail with InvalidStateError (a traceback).
+            _stop_workers(list(getattr(executor, "_processes", {}).values()))
             executor.shutdown(wait=True, cancel_futures=True)
+
+
+#: Seconds the workers of an interrupted batch get to unwind their jobs before they are killed.
+STOP_GRACE = 10.0
+
+
+def _stop_workers(processes: list, grace: float = STOP_GRACE) -> None:
+    """SIGTERM the pool's workers, wait up to ``grace`` s for them to leave, SIGKILL the rest.
+
+    A worker unwinds its job on SIGTERM (removing its temporary files) and leaves
+    (:mod:`._worker`).  The pool's shutdown would wait for ever on one that does not (e.g.
+    blocked on a lock of the pool's queues held by a sibling that is gone), so the
+    batch's end never depends on it: past the grace it is killed.  Outputs are staged and
+    written at the end of a job, in Python, which sees the signal at once; a worker still
+    busy past the grace is blocked, or inside a compiled kernel with no output open.
+    """
+    from multiprocessing.connection import wait
+
+    for process in processes:
+        try:
+            process.terminate()
+        except Exception:  # noqa: BLE001 -- already gone
+            pass
+    waiting = {}
+    for process in processes:
+        try:
+            waiting[process.sentinel] = process
+        except ValueError:      # closed: already joined
+            pass
+    deadline = time.monotonic() + grace
+    while waiting:
+        left = deadline - time.monotonic()
+        if left <= 0:
+            break
+        for sentinel in wait(list(waiting), timeout=left):
+            waiting.pop(sentinel, None)
+    for process in waiting.values():
+        log.debug("worker %s did not stop within %.0f s: killed", process.pid, grace)
+        try:
+            process.kill()
+        except Exception:  # noqa: BLE001 -- gone meanwhile
+            pass
 
 
 def _dask_client(scheduler, workers: int, threads: int | None):

@@ -17,6 +17,13 @@ run that no longer exists.  Two mechanisms, because neither is enough alone:
 
 Either way the worker takes the SIGTERM path: a running job unwinds (its temporary files
 are removed) and the worker exits without starting another.
+
+A worker asked to stop never goes back to the pool's queues.  Their locks are semaphores
+shared by all the workers, and a sibling stopped at the same moment may have left while
+holding one (SIGTERM found it idle, reading the next call or sending a result): a worker
+that then sent its unwound job's result, or asked for the next call, would wait on that
+lock for ever, and the batch with it, in its pool's shutdown.  So a job interrupted by
+SIGTERM ends the worker as soon as it has unwound (:func:`_run_in_worker`).
 """
 
 from __future__ import annotations
@@ -47,6 +54,8 @@ def _limit_numba_threads(threads: int | None) -> None:
 
 _job_running = False
 _terminating = False
+#: The worker is running its exit handlers.
+_leaving = False
 #: The worker's parent process and the batch's process (None outside a pool worker).
 _parent_pid: int | None = None
 _owner_pid: int | None = None
@@ -63,6 +72,12 @@ def _exit_worker(code: int) -> None:
     finalizers (plain :func:`os._exit`) would leave it to the resource tracker, which
     then prints a "leaked semaphore objects" warning on the user's terminal.
     """
+    global _job_running, _leaving
+    # A further SIGTERM (the pool stops every worker once one has gone) must not cut the
+    # exit handlers short: a semaphore unlinked but not yet unregistered would make the
+    # resource tracker warn of a leak.
+    _leaving = True
+    _job_running = False
     try:
         from multiprocessing import util
         util._exit_function()
@@ -97,9 +112,25 @@ def _in_job(flag: bool) -> None:
     _job_running = flag
 
 
+def _run_in_worker(fn, job):
+    """``fn(job)`` in a pool worker; once SIGTERM has asked the worker to stop, leave after the job.
+
+    The job has unwound by then (its temporary files removed).  Its result is not sent: no
+    one is waiting for it, and the result queue's lock may be held by a sibling that is
+    gone (see the module's docstring).
+    """
+    try:
+        return fn(job)
+    finally:
+        if _terminating:
+            _exit_worker(143)
+
+
 def _worker_sigterm(signum, frame):
     # Inside a job: unwind so atomic writers delete their temporary files.  Idle: just go.
     global _terminating
+    if _leaving:
+        return
     _terminating = True
     if _job_running:
         raise KeyboardInterrupt
