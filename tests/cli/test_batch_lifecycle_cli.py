@@ -170,7 +170,7 @@ def _session_processes(sid):
     return [int(x) for x in out.split()]
 
 
-@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="ps -s and process sessions as on Linux")
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="ps -s and setsid process groups as on Linux")
 def test_workers_die_with_a_parent_killed_outright(decode_batch):
     proc = _start_decode(decode_batch)
     _wait_for_first_output(decode_batch, proc)

@@ -4,7 +4,7 @@ went away) ends at once: its one line and exit code, no worker left running, not
 The failure reaches the batch while its workers are busy, and the pool is stopped under them.
 The stop raced with the pool's own queues (a worker could wait for ever on a lock that a
 sibling took with it), so every case is run several times, as real processes, each with a
-timeout; the batch runs in its own session so that any process it leaves is found.
+timeout; the batch runs under its own setsid so that any process it leaves is found.
 """
 
 from __future__ import annotations
@@ -24,7 +24,7 @@ from stereobudget.io import load_samples
 from stereobudget.scenes import make_scene
 
 pytestmark = pytest.mark.skipif(not sys.platform.startswith("linux"),
-                                reason="process sessions and /dev/full as on Linux")
+                                reason="setsid process groups and /dev/full as on Linux")
 
 SB_ENCODE = str(Path(sys.executable).parent / "sb-encode")
 RUNS = 5
@@ -42,13 +42,13 @@ def frames(tmp_path_factory):
 
 
 def _alive_in_session(sid: int) -> list[str]:
-    """Processes of session ``sid`` still running (a zombie has ended; only its parent is missing)."""
+    """Processes of the setsid group ``sid`` still running (a zombie has ended; only its parent is missing)."""
     out = subprocess.run(["ps", "-o", "pid=,stat=,args=", "-s", str(sid)], capture_output=True, text=True).stdout
     return [line for line in out.splitlines() if line.split()[1:2] and not line.split()[1].startswith("Z")]
 
 
 def run_batch(argv, cwd: Path, **popen) -> tuple[int, str]:
-    """Run ``argv`` in its own session; (exit code, stderr).  Fails on a hang or a process left behind."""
+    """Run ``argv`` under its own setsid; (exit code, stderr).  Fails on a hang or a process left behind."""
     proc = subprocess.Popen(argv, cwd=cwd, stderr=subprocess.PIPE, text=True, start_new_session=True, **popen)
     try:
         err = proc.communicate(timeout=TIMEOUT)[1]
