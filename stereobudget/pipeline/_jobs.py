@@ -316,11 +316,11 @@ def decode_arrays(left, samples, job: DecodeJob, *, left_name: str, samples_name
                  max_disp, estimate.votes, estimate.seconds)
 
     method = job.method or DEFAULT_METHOD
+    # A process that decodes file after file: each decode takes over the last one's memory.
+    decoder = decoder or decoders.shared_decoder()
     try:
-        # A process that decodes file after file: each decode takes over the last one's memory.
-        result = (decoder or decoders.shared_decoder()).decode(left, samples, max_disp=max_disp,
-                                                               min_disp=min_disp, method=method,
-                                                               max_memory=job.max_memory)
+        result = decoder.decode(left, samples, max_disp=max_disp, min_disp=min_disp, method=method,
+                                max_memory=job.max_memory)
     except MemoryLimitError as exc:
         raise MemoryLimitError(exc.message, path=left_name) from None
     except OptionError as exc:
@@ -340,9 +340,8 @@ def decode_arrays(left, samples, job: DecodeJob, *, left_name: str, samples_name
                      min_disp, max_disp, min_disp, wider)
             timings.update({f"{k}_first_range": v for k, v in result.timings.items()})
             try:
-                result = (decoder or decoders.shared_decoder()).decode(left, samples, max_disp=wider,
-                                                                       min_disp=min_disp, method=method,
-                                                                       max_memory=job.max_memory)
+                result = decoder.decode(left, samples, max_disp=wider, min_disp=min_disp, method=method,
+                                        max_memory=job.max_memory)
                 widened_from, max_disp = max_disp, wider
             except MemoryLimitError:
                 log.info("%s: the wider range does not fit the memory limit; keeping %d..%d", left_name,
