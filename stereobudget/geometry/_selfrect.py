@@ -32,12 +32,17 @@ MIN_MATCHES = 40
 MAX_RESIDUAL = 0.5
 #: Patches matched: side in samples, how many (spread over the frame).
 PATCH = 9
-PATCHES = 384
+PATCHES = 1536
 #: Least gray-level spread of a patch worth matching, least correlation of a match, and
 #: least margin over the best correlation elsewhere (repetitive textures fail it).
 MIN_TEXTURE = 6.0
 MIN_CORRELATION = 0.8
 MIN_MARGIN = 0.05
+#: Least scale of the rectified frame against the raw one.
+MIN_SCALE = 0.5
+#: Weight of the prior that keeps the cameras' common pan (turn about the vertical) small: the
+#: rows see it only through the scene's depth, while it moves both images sideways.
+PAN_PRIOR = 3.0
 
 
 @dataclass(frozen=True)
@@ -123,7 +128,7 @@ def match_lattice(left: np.ndarray, samples: SampleSet, *, patch: int = PATCH, c
                 if block[r, c] >= MIN_TEXTURE:
                     centres.append((r0 + r, c0 + c))
     phases = [(py, px, np.ascontiguousarray(left_gray[py::sy, px::sx])) for py in range(sy) for px in range(sx)]
-    pts_left, pts_right = [], []
+    pts_left, pts_right, templates = [], [], []
     for r, c in centres:
         template = right_small[r - half:r + half + 1, c - half:c + half + 1]
         # Full-resolution centre of the patch in the right image, and the window searched in I1.
@@ -161,8 +166,78 @@ def match_lattice(left: np.ndarray, samples: SampleSet, *, patch: int = PATCH, c
         if score - second < MIN_MARGIN:
             continue
         pts_left.append((x, y))
+        templates.append(template)
         pts_right.append((xr, yr))
-    return np.array(pts_left, np.float64).reshape(-1, 2), np.array(pts_right, np.float64).reshape(-1, 2)
+    pts_left = np.array(pts_left, np.float64).reshape(-1, 2)
+    if len(pts_left):
+        pts_left = _refine_matches(left_gray, np.array(templates, np.float32), pts_left, sx, sy)
+    return pts_left, np.array(pts_right, np.float64).reshape(-1, 2)
+
+
+def _refine_matches(left_gray, templates, centres, sx, sy, iterations: int = 8):
+    """Each match's centre in I1 to a fraction of a pixel: Gauss-Newton on the squared
+    difference between the template and I1 read bilinearly at the grid's spacing, with a gain
+    and an offset per match (the cameras' exposures differ).  A match whose step runs away
+    (more than a pixel from where it started) keeps its whole-pixel position."""
+    import cv2
+
+    n, rows, cols = templates.shape
+    gx = cv2.Sobel(left_gray, cv2.CV_32F, 1, 0, ksize=3, scale=1 / 8)
+    gy = cv2.Sobel(left_gray, cv2.CV_32F, 0, 1, ksize=3, scale=1 / 8)
+    offsets_x = ((np.arange(cols) - cols // 2) * sx).astype(np.float32)
+    offsets_y = ((np.arange(rows) - rows // 2) * sy).astype(np.float32)
+    start = centres.astype(np.float32)
+    current = start.copy()
+    t = templates.reshape(n, -1).astype(np.float64)
+    for _ in range(iterations):
+        map_x = (current[:, 0, None, None] + offsets_x[None, None, :]) * np.ones((1, rows, 1), np.float32)
+        map_y = (current[:, 1, None, None] + offsets_y[None, :, None]) * np.ones((1, 1, cols), np.float32)
+        map_x, map_y = map_x.reshape(n * rows, cols), map_y.reshape(n * rows, cols)
+
+        def read(image):
+            return cv2.remap(image, map_x, map_y, cv2.INTER_LINEAR,
+                             borderMode=cv2.BORDER_REPLICATE).reshape(n, -1).astype(np.float64)
+
+        values, dx, dy = read(left_gray), read(gx), read(gy)
+        # Unknowns per match: shift (ux, uy), gain a, offset b in a * I1(p + u) + b = T(p).
+        ones = np.ones_like(values)
+        jac = np.stack([dx, dy, values, ones], axis=2)                       # (n, m, 4)
+        residual = t - values                                                  # at a = 1, b = 0 (relinearised)
+        # Solve for (ux, uy, a - 1, b) in the least-squares sense.
+        normal = np.einsum("nmi,nmj->nij", jac, jac) + 1e-6 * np.eye(4)
+        rhs = np.einsum("nmi,nm->ni", jac, residual)
+        step = np.linalg.solve(normal, rhs[..., None])[..., 0]
+        current = current + np.clip(step[:, :2], -0.5, 0.5).astype(np.float32)
+    moved = np.abs(current - start).max(axis=1) > 1.0
+    current[moved] = start[moved]
+    return current.astype(np.float64)
+
+
+def _ncc(a, b):
+    a = a - a.mean()
+    b = b - b.mean()
+    norm = np.sqrt(float((a * a).sum()) * float((b * b).sum()))
+    return float((a * b).sum()) / norm if norm > 0 else -1.0
+
+
+def _subpixel_peak(left_gray, template, x, y, sx, sy):
+    """The match (x, y) to a fraction of a pixel: the correlation of the template with I1
+    read at the grid's spacing one pixel either side, a parabola through each axis's three."""
+    h, w = left_gray.shape
+    rows, cols = template.shape
+    x0, y0 = x - (cols // 2) * sx, y - (rows // 2) * sy
+    if x0 < 1 or y0 < 1 or x0 + (cols - 1) * sx > w - 2 or y0 + (rows - 1) * sy > h - 2:
+        return float(x), float(y)
+
+    def score(dx, dy):
+        return _ncc(left_gray[y0 + dy:y0 + dy + rows * sy:sy, x0 + dx:x0 + dx + cols * sx:sx], template)
+
+    centre = score(0, 0)
+    offsets = []
+    for before, after in ((score(-1, 0), score(1, 0)), (score(0, -1), score(0, 1))):
+        curvature = before - 2 * centre + after
+        offsets.append(0.0 if curvature >= 0 else float(np.clip(0.5 * (before - after) / curvature, -0.5, 0.5)))
+    return float(x) + offsets[0], float(y) + offsets[1]
 
 
 def self_rectification(left: np.ndarray, samples: SampleSet, *, min_matches: int = MIN_MATCHES,
@@ -238,26 +313,29 @@ def self_rectification(left: np.ndarray, samples: SampleSet, *, min_matches: int
         residual = np.abs(r1[:, 1] - r2[:, 1])
         if best is None or np.median(residual) < np.median(best[1]):
             best = (rect, residual, r1[:, 0] - r2[:, 0])
-    if best is None:
-        _fail("no relative pose of the cameras fits the matches as a left/right pair (a swapped pair?); give a "
-              "calibration file")
-    rect, residual, disparity = best
     # Lens distortion and the focal length refined on half of the matches and judged on the
     # other half: eight parameters fit a hundred matches' rows too easily to trust the fit's
-    # own residual.
+    # own residual.  Residuals are in raw pixels, whatever the scale of the rectified frame.
     fit, held = slice(0, None, 2), slice(1, None, 2)
-    refined = _refine(rect.calibration, pts1[fit], pts2[fit], w, h)
-    if refined is not None:
-        c = refined[0]
-        check = np.abs(_project_distorted(pts1[held], c.R1, c.P1, c.calibration.M1, c.calibration.D1)[:, 1]
-                       - _project_distorted(pts2[held], c.R2, c.P2, c.calibration.M2, c.calibration.D2)[:, 1])
-        before = residual[held]
-        if np.median(check) < np.median(before):
-            rect, residual = c, check
-        else:
-            residual = before
-    else:
-        residual = residual[held]
+    found = []
+    if best is not None:
+        refined = _refine(best[0].calibration, pts1[fit], pts2[fit], w, h)
+        for rect in ([best[0]] if refined is None else [best[0], refined[0]]):
+            found.append((rect, _held_residual(rect, pts1[held], pts2[held])))
+    # A side-by-side rig whose cameras are each turned a little: the essential matrix of a
+    # nearly rectified pair is poorly conditioned, and its pose can align the rows while
+    # tilting the baseline far forward, which shrinks the rectified frame to a few pixels.
+    rig = _refine_rig(pts1[fit], pts2[fit], w, h)
+    if rig is not None:
+        found.append((rig, _held_residual(rig, pts1[held], pts2[held])))
+    if not found:
+        _fail("no relative pose of the cameras fits the matches as a left/right pair (a swapped pair?); give a "
+              "calibration file")
+    rect, residual = min(found, key=lambda item: float(np.median(item[1])))
+    shrink = rect.focal / rect.calibration.M1[0, 0]
+    if shrink < MIN_SCALE:
+        _fail(f"the estimated rectification would shrink the image {1 / shrink:.1f} times (a pose the matches do "
+              "not pin down); give a calibration file")
     report = SelfRectificationReport(matches=int(len(pts1)), candidates=candidates,
                                      residual_median=float(np.median(residual)),
                                      residual_p90=float(np.percentile(residual, 90)))
@@ -265,6 +343,96 @@ def self_rectification(left: np.ndarray, samples: SampleSet, *, min_matches: int
         _fail(f"the estimated rectification leaves a median vertical error of {report.residual_median:.2f} px "
               f"(over {report.matches} matches; at most {max_residual} accepted); give a calibration file")
     return rect, report
+
+
+def _held_residual(rect, pts1, pts2):
+    """|vertical error| (n,) of matches after ``rect``, in raw pixels (the rectified frame's
+    pixels scaled by the raw focal length over the rectified one)."""
+    c = rect.calibration
+    a = _project_distorted(pts1, rect.R1, rect.P1, c.M1, c.D1)
+    b = _project_distorted(pts2, rect.R2, rect.P2, c.M2, c.D2)
+    return np.abs(a[:, 1] - b[:, 1]) * (c.M1[0, 0] / rect.focal)
+
+
+def _rig_camera(theta, w, h):
+    focal = float(np.exp(theta[7]) * w)
+    return np.array([[focal, 0, (w - 1) / 2.0], [0, focal, (h - 1) / 2.0], [0, 0, 1]])
+
+
+def _rig_turns(theta):
+    """Each camera's turn from the common rectified orientation.  The left one has no turn
+    about the baseline: turning both cameras about it keeps every row (the gauge)."""
+    import cv2
+
+    left = cv2.Rodrigues(np.array([0.0, theta[0], theta[1]]))[0]
+    right = cv2.Rodrigues(np.asarray(theta[2:5], np.float64))[0]
+    return left, right
+
+
+def _rig_residuals(theta, pts1, pts2, w, h):
+    """Vertical error (n,) of matches, in pixels, after undoing each camera's turn and k1."""
+    from ._rectify import _undistort
+    k = _rig_camera(theta, w, h)
+    turn_left, turn_right = _rig_turns(theta)
+    a = _undistort(pts1, k, np.array([theta[5], 0, 0, 0, 0]), turn_left.T, k)
+    b = _undistort(pts2, k, np.array([theta[6], 0, 0, 0, 0]), turn_right.T, k)
+    return a[:, 1] - b[:, 1]
+
+
+def _refine_rig(pts1, pts2, w, h, iterations: int = 40):
+    """A side-by-side rig fitted to the matches' rows: both cameras turned from one rectified
+    orientation (5 angles), a k1 for each lens and a shared focal length, by Levenberg-Marquardt
+    from the untouched rig, with Huber weights at 1 px and mild priors on the focal length and
+    the k1s.  Returns the Rectification, or None."""
+    import cv2
+
+    from ._calibration import StereoCalibration
+    from ._rectify import rectify_stereo
+    n = len(pts1)
+    theta = np.zeros(8)
+    # Priors, one row each: the common pan (the two pans' sum; a pan apart from the other camera's
+    # is seen in the rows), each k1, the focal length.
+    priors = np.zeros((4, 8))
+    priors[0, [0, 3]] = PAN_PRIOR
+    priors[1, 5] = priors[2, 6] = 0.5
+    priors[3, 7] = 1.0
+    priors *= np.sqrt(n)
+
+    def cost(r, th):
+        return np.sum(np.minimum(r * r, 2 * np.abs(r) - 1)) + np.sum((priors @ th) ** 2)
+
+    damping = 1e-3
+    try:
+        res = _rig_residuals(theta, pts1, pts2, w, h)
+        for _ in range(iterations):
+            weights = 1.0 / np.maximum(1.0, np.abs(res))
+            jac = np.empty((n, len(theta)))
+            for i in range(len(theta)):
+                step = np.zeros_like(theta)
+                step[i] = 1e-6
+                jac[:, i] = (_rig_residuals(theta + step, pts1, pts2, w, h) - res) / step[i]
+            a = np.vstack([jac * np.sqrt(weights)[:, None], priors])
+            b = np.r_[-res * np.sqrt(weights), -priors @ theta]
+            normal = a.T @ a
+            delta = np.linalg.solve(normal + damping * np.diag(np.diag(normal) + 1e-12), a.T @ b)
+            candidate = _rig_residuals(theta + delta, pts1, pts2, w, h)
+            if cost(candidate, theta + delta) < cost(res, theta):
+                theta, res, damping = theta + delta, candidate, damping * 0.3
+            else:
+                damping *= 10
+            if np.max(np.abs(delta)) < 1e-8:
+                break
+        k = _rig_camera(theta, w, h)
+        turn_left, turn_right = _rig_turns(theta)
+        # Camera i sees x_i = turn_i x, x in the rectified frame, camera 2 at +x: x2 = R x1 + T.
+        rotation = turn_right @ turn_left.T
+        t = -turn_right @ np.array([1.0, 0.0, 0.0])
+        calibration = StereoCalibration(M1=k, D1=np.array([theta[5], 0, 0, 0, 0]), M2=k.copy(),
+                                        D2=np.array([theta[6], 0, 0, 0, 0]), R=rotation, T=t, image_size=(w, h),
+                                        source="auto")
+        return rectify_stereo(calibration, w, h)
+    except (cv2.error, np.linalg.LinAlgError, CalibrationError):
+        return None
 
 
 def _calibration_of(theta, w, h):
