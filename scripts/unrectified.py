@@ -155,7 +155,7 @@ def run_scene(folder: Path, configs, work: Path, seed: int, variants=()) -> list
                     result = stereobudget.decode(left_a, placed, max_disp=hi_a, min_disp=lo_a)
                     row["self"] = bad_raw(raw_right_positions(result.disparity, auto), pair)
                     row["self_note"] = (f"{report.matches} matches, residual {report.residual_median:.2f} px "
-                                        f"(p90 {report.residual_p90:.2f})")
+                                        f"(p90 {report.residual_p90:.2f}), uncertainty {report.uncertainty:.2f} px")
                     continue
                 placed = rectify_samples(raw_samples, rect, subpixel=name != "nearest")
                 params = DecoderParams(sparse_census_weight=0.0) if name == "no_census" else None

@@ -1,20 +1,22 @@
 """Self-rectification (experimental): the epipolar geometry from I1 and the samples alone.
 
-Not offered by ``sb-decode`` yet: ``scripts/unrectified.py --variants self`` measured it
-refusing most unrectified realdev pairs and decoding some of the rest far worse than the
-known calibration while its residual stayed small (docs/results.md).
+Not offered by ``sb-decode`` yet: on the unrectified realdev pairs of
+``scripts/unrectified.py --variants self`` it decodes some scenes as well as the known
+calibration and others far worse, and neither its residual nor its uncertainty tells them
+apart well enough to refuse the bad ones (docs/results.md).
 
 The right camera's grid is a decimated right image, so it can be matched with I1 read at
 the grid's spacing (:func:`match_lattice`), which gives point pairs in full-resolution
-pixels; ``cv2.findFundamentalMat``
-(RANSAC) keeps the consistent ones.  ``cv2.stereoRectifyUncalibrated``'s homographies
-turn nearly rectified pairs by tens of degrees; instead the relative rotation is
-recovered from the essential matrix for a range of focal lengths and the pair rectified
-as a calibrated one (alpha 1: nothing either camera sees is cropped), keeping the focal
-length whose rectified matches share their rows best.  The residual
-vertical error of the kept matches after rectification is reported; too few reliable
-matches, or a residual too large, is refused in one line rather than decoded into
-garbage.  There is no metric scale and no lens distortion in this model.
+pixels, refined to a fraction of a pixel; ``cv2.findFundamentalMat`` (RANSAC) keeps the
+consistent ones.  The pair is then modelled as a side-by-side rig whose cameras are each
+turned a little from one rectified orientation, with a radial distortion k1 per lens and a
+shared focal length, fitted to the matches' rows from the untouched rig (an essential
+matrix's pose of a nearly rectified pair is poorly conditioned: it can align the rows while
+tilting the baseline far forward), and rectified as a calibrated pair (alpha 1: nothing
+either camera sees is cropped).  The residual vertical error of the matches the fit did
+not see, and the fit's own uncertainty carried over the frame, are reported; too few
+reliable matches, a residual too large, or a rectification that shrinks the image is
+refused in one line rather than decoded into garbage.  There is no metric scale.
 """
 
 from __future__ import annotations
@@ -54,11 +56,13 @@ class SelfRectificationReport:
     candidates: int
     residual_median: float
     residual_p90: float
+    uncertainty: float = 0.0
 
     def summary(self) -> dict:
         return {"matches": self.matches, "candidates": self.candidates,
                 "residual_vertical_px_median": round(self.residual_median, 3),
-                "residual_vertical_px_p90": round(self.residual_p90, 3)}
+                "residual_vertical_px_p90": round(self.residual_p90, 3),
+                "uncertainty_vertical_px": round(self.uncertainty, 3)}
 
 
 def _gray_u8(image):
@@ -213,33 +217,6 @@ def _refine_matches(left_gray, templates, centres, sx, sy, iterations: int = 8):
     return current.astype(np.float64)
 
 
-def _ncc(a, b):
-    a = a - a.mean()
-    b = b - b.mean()
-    norm = np.sqrt(float((a * a).sum()) * float((b * b).sum()))
-    return float((a * b).sum()) / norm if norm > 0 else -1.0
-
-
-def _subpixel_peak(left_gray, template, x, y, sx, sy):
-    """The match (x, y) to a fraction of a pixel: the correlation of the template with I1
-    read at the grid's spacing one pixel either side, a parabola through each axis's three."""
-    h, w = left_gray.shape
-    rows, cols = template.shape
-    x0, y0 = x - (cols // 2) * sx, y - (rows // 2) * sy
-    if x0 < 1 or y0 < 1 or x0 + (cols - 1) * sx > w - 2 or y0 + (rows - 1) * sy > h - 2:
-        return float(x), float(y)
-
-    def score(dx, dy):
-        return _ncc(left_gray[y0 + dy:y0 + dy + rows * sy:sy, x0 + dx:x0 + dx + cols * sx:sx], template)
-
-    centre = score(0, 0)
-    offsets = []
-    for before, after in ((score(-1, 0), score(1, 0)), (score(0, -1), score(0, 1))):
-        curvature = before - 2 * centre + after
-        offsets.append(0.0 if curvature >= 0 else float(np.clip(0.5 * (before - after) / curvature, -0.5, 0.5)))
-    return float(x) + offsets[0], float(y) + offsets[1]
-
-
 def self_rectification(left: np.ndarray, samples: SampleSet, *, min_matches: int = MIN_MATCHES,
                        max_residual: float = MAX_RESIDUAL):
     """Estimate a rectification of the pair from I1 and the right camera's grid alone.
@@ -267,9 +244,6 @@ def self_rectification(left: np.ndarray, samples: SampleSet, *, min_matches: int
     """
     import cv2
 
-    from ._calibration import StereoCalibration
-    from ._rectify import rectify_stereo
-
     h, w = left.shape[:2]
     pts1, pts2 = match_lattice(left, samples)
     candidates = len(pts1)
@@ -285,60 +259,22 @@ def self_rectification(left: np.ndarray, samples: SampleSet, *, min_matches: int
         _fail(f"too few reliable matches between I1 and the samples ({int(keep.sum())} of {candidates} agree on an "
               f"epipolar geometry, at least {min_matches} needed); give a calibration file")
     pts1, pts2 = pts1[keep], pts2[keep]
-    # Rotations are found up to the focal length, which a pair of images does not give
-    # well: each candidate focal length gives a relative pose (cv2.recoverPose of the
-    # essential matrix) and OpenCV's calibrated rectification; the one whose rectified
-    # matches share their rows best is kept.
-    best = None
-    for focal in np.geomspace(0.4, 3.0, 15) * w:
-        k = np.array([[focal, 0, (w - 1) / 2.0], [0, focal, (h - 1) / 2.0], [0, 0, 1]])
-        essential = k.T @ f @ k
-        try:
-            _, rotation, direction, _ = cv2.recoverPose(essential, pts1, pts2, k)
-        except cv2.error:
-            continue
-        t = direction.ravel()
-        if not np.all(np.isfinite(t)) or abs(t[0]) < 0.5 * np.linalg.norm(t):
-            continue
-        if t[0] > 0:
-            continue         # camera 2 to the left: not this focal length, or a swapped pair
-        calibration = StereoCalibration(M1=k, D1=np.zeros(5), M2=k.copy(), D2=np.zeros(5), R=rotation,
-                                        T=t / np.linalg.norm(t), image_size=(w, h), source="auto")
-        try:
-            rect = rectify_stereo(calibration, w, h)
-        except CalibrationError:
-            continue
-        r1 = _project(pts1, rect.R1, rect.P1, k)
-        r2 = _project(pts2, rect.R2, rect.P2, k)
-        residual = np.abs(r1[:, 1] - r2[:, 1])
-        if best is None or np.median(residual) < np.median(best[1]):
-            best = (rect, residual, r1[:, 0] - r2[:, 0])
-    # Lens distortion and the focal length refined on half of the matches and judged on the
-    # other half: eight parameters fit a hundred matches' rows too easily to trust the fit's
-    # own residual.  Residuals are in raw pixels, whatever the scale of the rectified frame.
+    # The rig is fitted on half of the matches and judged on the other half: eight parameters
+    # fit a few hundred matches' rows too easily to trust the fit's own residual.  Residuals
+    # are in raw pixels, whatever the scale of the rectified frame.
     fit, held = slice(0, None, 2), slice(1, None, 2)
-    found = []
-    if best is not None:
-        refined = _refine(best[0].calibration, pts1[fit], pts2[fit], w, h)
-        for rect in ([best[0]] if refined is None else [best[0], refined[0]]):
-            found.append((rect, _held_residual(rect, pts1[held], pts2[held])))
-    # A side-by-side rig whose cameras are each turned a little: the essential matrix of a
-    # nearly rectified pair is poorly conditioned, and its pose can align the rows while
-    # tilting the baseline far forward, which shrinks the rectified frame to a few pixels.
-    rig = _refine_rig(pts1[fit], pts2[fit], w, h)
-    if rig is not None:
-        found.append((rig, _held_residual(rig, pts1[held], pts2[held])))
-    if not found:
-        _fail("no relative pose of the cameras fits the matches as a left/right pair (a swapped pair?); give a "
-              "calibration file")
-    rect, residual = min(found, key=lambda item: float(np.median(item[1])))
+    found = _refine_rig(pts1[fit], pts2[fit], w, h)
+    if found is None:
+        _fail("no turn of the cameras fits the matches as a left/right pair; give a calibration file")
+    rect, spread = found
+    residual = _held_residual(rect, pts1[held], pts2[held])
     shrink = rect.focal / rect.calibration.M1[0, 0]
     if shrink < MIN_SCALE:
         _fail(f"the estimated rectification would shrink the image {1 / shrink:.1f} times (a pose the matches do "
               "not pin down); give a calibration file")
     report = SelfRectificationReport(matches=int(len(pts1)), candidates=candidates,
                                      residual_median=float(np.median(residual)),
-                                     residual_p90=float(np.percentile(residual, 90)))
+                                     residual_p90=float(np.percentile(residual, 90)), uncertainty=spread)
     if report.residual_median > max_residual:
         _fail(f"the estimated rectification leaves a median vertical error of {report.residual_median:.2f} px "
               f"(over {report.matches} matches; at most {max_residual} accepted); give a calibration file")
@@ -379,11 +315,22 @@ def _rig_residuals(theta, pts1, pts2, w, h):
     return a[:, 1] - b[:, 1]
 
 
+def _rig_jacobian(theta, pts1, pts2, w, h, residuals):
+    """d residual / d theta (n, 8), by forward differences."""
+    jac = np.empty((len(residuals), len(theta)))
+    for i in range(len(theta)):
+        step = np.zeros_like(theta)
+        step[i] = 1e-6
+        jac[:, i] = (_rig_residuals(theta + step, pts1, pts2, w, h) - residuals) / step[i]
+    return jac
+
+
 def _refine_rig(pts1, pts2, w, h, iterations: int = 40):
     """A side-by-side rig fitted to the matches' rows: both cameras turned from one rectified
     orientation (5 angles), a k1 for each lens and a shared focal length, by Levenberg-Marquardt
     from the untouched rig, with Huber weights at 1 px and mild priors on the focal length and
-    the k1s.  Returns the Rectification, or None."""
+    the k1s.  Returns the Rectification and the 90th percentile over the frame of the rows'
+    standard error (raw pixels), or None."""
     import cv2
 
     from ._calibration import StereoCalibration
@@ -406,11 +353,7 @@ def _refine_rig(pts1, pts2, w, h, iterations: int = 40):
         res = _rig_residuals(theta, pts1, pts2, w, h)
         for _ in range(iterations):
             weights = 1.0 / np.maximum(1.0, np.abs(res))
-            jac = np.empty((n, len(theta)))
-            for i in range(len(theta)):
-                step = np.zeros_like(theta)
-                step[i] = 1e-6
-                jac[:, i] = (_rig_residuals(theta + step, pts1, pts2, w, h) - res) / step[i]
+            jac = _rig_jacobian(theta, pts1, pts2, w, h, res)
             a = np.vstack([jac * np.sqrt(weights)[:, None], priors])
             b = np.r_[-res * np.sqrt(weights), -priors @ theta]
             normal = a.T @ a
@@ -422,6 +365,19 @@ def _refine_rig(pts1, pts2, w, h, iterations: int = 40):
                 damping *= 10
             if np.max(np.abs(delta)) < 1e-8:
                 break
+        # How far the fitted rows could be off across the frame: the parameters' covariance
+        # (the matches' robust spread over the weighted normal equations) carried to a grid
+        # of points over the whole frame.  Matches bunched in one textured corner pin the
+        # rows down there and nowhere else.
+        weights = 1.0 / np.maximum(1.0, np.abs(res))
+        jac = _rig_jacobian(theta, pts1, pts2, w, h, res)
+        normal = (jac * weights[:, None]).T @ jac + priors.T @ priors
+        sigma = 1.4826 * float(np.median(np.abs(res)))
+        covariance = sigma * sigma * np.linalg.inv(normal)
+        gx, gy = np.meshgrid(np.linspace(0, w - 1, 9), np.linspace(0, h - 1, 7))
+        grid = np.stack([gx.ravel(), gy.ravel()], axis=1)
+        sensitivity = _rig_jacobian(theta, grid, grid, w, h, _rig_residuals(theta, grid, grid, w, h))
+        spread = np.sqrt(np.maximum(np.einsum("ni,ij,nj->n", sensitivity, covariance, sensitivity), 0))
         k = _rig_camera(theta, w, h)
         turn_left, turn_right = _rig_turns(theta)
         # Camera i sees x_i = turn_i x, x in the rectified frame, camera 2 at +x: x2 = R x1 + T.
@@ -430,72 +386,12 @@ def _refine_rig(pts1, pts2, w, h, iterations: int = 40):
         calibration = StereoCalibration(M1=k, D1=np.array([theta[5], 0, 0, 0, 0]), M2=k.copy(),
                                         D2=np.array([theta[6], 0, 0, 0, 0]), R=rotation, T=t, image_size=(w, h),
                                         source="auto")
-        return rectify_stereo(calibration, w, h)
+        return rectify_stereo(calibration, w, h), float(np.percentile(spread, 90))
     except (cv2.error, np.linalg.LinAlgError, CalibrationError):
         return None
 
 
-def _calibration_of(theta, w, h):
-    """The calibration of parameters ``theta``: rotation vector (3), T's y and z (x = -1), log focal / w, k1 of each lens."""
-    import cv2
 
-    from ._calibration import StereoCalibration
-    focal = float(np.exp(theta[5]) * w)
-    k = np.array([[focal, 0, (w - 1) / 2.0], [0, focal, (h - 1) / 2.0], [0, 0, 1]])
-    t = np.array([-1.0, theta[3], theta[4]])
-    return StereoCalibration(M1=k, D1=np.array([theta[6], 0, 0, 0, 0]), M2=k.copy(),
-                             D2=np.array([theta[7], 0, 0, 0, 0]), R=cv2.Rodrigues(np.asarray(theta[:3]))[0],
-                             T=t / np.linalg.norm(t), image_size=(w, h), source="auto")
-
-
-def _vertical_residuals(theta, pts1, pts2, w, h):
-    import cv2
-
-    c = _calibration_of(theta, w, h)
-    r1, r2, p1, p2, *_ = cv2.stereoRectify(c.M1, c.D1, c.M2, c.D2, (w, h), c.R, c.T.reshape(3, 1),
-                                           flags=cv2.CALIB_ZERO_DISPARITY, alpha=1.0, newImageSize=(w, h))
-    a = cv2.undistortPoints(pts1.reshape(-1, 1, 2), c.M1, c.D1, R=r1, P=p1).reshape(-1, 2)
-    b = cv2.undistortPoints(pts2.reshape(-1, 1, 2), c.M2, c.D2, R=r2, P=p2).reshape(-1, 2)
-    return (a[:, 1] - b[:, 1]) * (w / p1[0, 0])       # in raw pixels
-
-
-def _refine(calibration, pts1, pts2, w, h, iterations: int = 30):
-    """Levenberg-Marquardt on the pose, the focal length and each lens's k1, minimising the
-    matches' vertical residuals after rectification (robust: Huber weights at 1 px)."""
-    import cv2
-
-    from ._rectify import rectify_stereo
-    t = calibration.T / -calibration.T[0]
-    theta = np.r_[cv2.Rodrigues(calibration.R)[0].ravel(), t[1], t[2], np.log(calibration.M1[0, 0] / w), 0.0, 0.0]
-    prior = theta.copy()
-    prior_weight = np.array([0, 0, 0, 0, 0, 0.05, 0.5, 0.5]) * np.sqrt(len(pts1))
-    damping = 1e-3
-    try:
-        res = _vertical_residuals(theta, pts1, pts2, w, h)
-        for _ in range(iterations):
-            weights = 1.0 / np.maximum(1.0, np.abs(res))        # Huber
-            jac = np.empty((len(res), len(theta)))
-            for i in range(len(theta)):
-                step = np.zeros_like(theta)
-                step[i] = 1e-6 if i < 5 else 1e-5
-                jac[:, i] = (_vertical_residuals(theta + step, pts1, pts2, w, h) - res) / step[i]
-            a = np.vstack([jac * np.sqrt(weights)[:, None], np.diag(prior_weight)])
-            b = np.r_[-res * np.sqrt(weights), -prior_weight * (theta - prior)]
-            normal = a.T @ a
-            delta = np.linalg.solve(normal + damping * np.diag(np.diag(normal) + 1e-12), a.T @ b)
-            candidate = _vertical_residuals(theta + delta, pts1, pts2, w, h)
-            def cost(r, th):
-                return np.sum(np.minimum(r * r, 2 * np.abs(r) - 1)) + np.sum((prior_weight * (th - prior)) ** 2)
-            if cost(candidate, theta + delta) < cost(res, theta):
-                theta, res, damping = theta + delta, candidate, damping * 0.3
-            else:
-                damping *= 10
-            if np.max(np.abs(delta)) < 1e-7:
-                break
-        rect = rectify_stereo(_calibration_of(theta, w, h), w, h)
-    except (cv2.error, np.linalg.LinAlgError, CalibrationError):
-        return None
-    return rect, np.abs(_vertical_residuals(theta, pts1, pts2, w, h))
 
 
 def _project_distorted(points, rotation, projection, camera, distortion):
@@ -504,13 +400,6 @@ def _project_distorted(points, rotation, projection, camera, distortion):
     return cv2.undistortPoints(np.ascontiguousarray(points, np.float64).reshape(-1, 1, 2), camera, distortion,
                                R=rotation, P=projection).reshape(-1, 2)
 
-
-def _project(points, rotation, projection, camera):
-    """Raw pixels (n, 2) of an undistorted camera -> rectified pixels (n, 2)."""
-    import cv2
-
-    return cv2.undistortPoints(np.ascontiguousarray(points, np.float64).reshape(-1, 1, 2), camera, None,
-                               R=rotation, P=projection).reshape(-1, 2)
 
 
 __all__ = ["MIN_MATCHES", "MAX_RESIDUAL", "PATCH", "PATCHES", "MIN_TEXTURE", "MIN_CORRELATION", "MIN_MARGIN", "SelfRectificationReport", "match_lattice", "self_rectification"]

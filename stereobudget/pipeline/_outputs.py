@@ -66,8 +66,9 @@ def _check_output_formats(job) -> None:
                           "cameras' focal length, baseline and rotation)")
     if job.calibration == "auto":
         # stereobudget.geometry.self_rectification exists, but scripts/unrectified.py measured it
-        # refusing most unrectified realdev pairs and decoding some of the rest badly with a small
-        # residual: it is not offered until a decode can tell a wrong estimate from a right one.
+        # decoding some unrectified realdev pairs 20-30 pp worse than their calibration while its
+        # residual and uncertainty stayed small: it is not offered until something tells a wrong
+        # estimate from a right one.
         raise OptionError("--calibration auto (self-rectification) is not available: give the calibration "
                           "file of the two cameras (see 'Your own cameras' in docs/cli.md)")
     if job.frame not in (None, "raw", "rectified"):
