@@ -33,8 +33,9 @@ class UnrectifiedPair:
         The raw right position (x, y) of each raw left pixel's scene point; NaN where the
         ground truth is unknown or the point lies outside the rectified image.
     scored : ndarray, bool (H, W)
-        Raw left pixels with ground truth (and inside the rectified image, and selected
-        by the rectified pair's mask).
+        Raw left pixels with ground truth, inside the rectified image, selected by the
+        rectified pair's mask, and seen by both raw cameras: a point whose match the turned
+        right camera no longer has in its frame is not scored (no decode could find it).
     right_rotation : ndarray (3, 3)
         ``Q_2``, the right camera's turn.
     """
@@ -152,6 +153,10 @@ def unrectify_pair(left: np.ndarray, right: np.ndarray, disparity: np.ndarray, *
     if len(rays):
         projected, _ = cv2.projectPoints(rays.reshape(-1, 1, 3), cv2.Rodrigues(q2)[0], np.zeros(3), k, d2)
         true_right[scored] = projected.reshape(-1, 2)
+    seen = ((true_right[..., 0] >= 0) & (true_right[..., 0] <= width - 1) & (true_right[..., 1] >= 0)
+            & (true_right[..., 1] <= height - 1))
+    scored &= seen
+    true_right[~scored] = np.nan
     calibration = StereoCalibration(M1=k, D1=d1, M2=k.copy(), D2=d2, R=q2 @ q1.T,
                                     T=-q2 @ np.array([baseline, 0.0, 0.0]), image_size=(width, height),
                                     source="<synthetic>")
