@@ -87,7 +87,7 @@ def census_semiglobal_disparity(left_f, right_f, *, tree_guide, min_disp, num_di
                                 p2=params.sgm_p2 * margin, params=params, timer=timer)
 
 
-def semiglobal_disparity(cost, guide, *, min_disp, p1, p2, params, timer, samples=None):
+def semiglobal_disparity(cost, guide, *, min_disp, p1, p2, params, timer, samples=None, paths=None):
     """Semi-global paths, diagonal left-right check, row fill of rejected pixels, the
     plane refinement (``params.plane_refinement``), median.
 
@@ -103,11 +103,13 @@ def semiglobal_disparity(cost, guide, *, min_disp, p1, p2, params, timer, sample
     p1, p2 : float
         Path penalties in the cost's units.
     params : stereobudget.decoding.DecoderParams
-        ``sgm_edge_scale``, ``sgm_paths``, ``median_size``, ``plane_refinement``,
+        ``sgm_edge_scale``, ``sgm_paths`` (unless ``paths``), ``median_size``, ``plane_refinement``,
         ``plane_segment_size``.
     timer : callable
     samples : SampleSet, optional
         The samples the plane refinement checks its planes against.
+    paths : {4, 8}, optional
+        Semi-global paths (default: ``params.sgm_paths``).
 
     Returns
     -------
@@ -117,7 +119,8 @@ def semiglobal_disparity(cost, guide, *, min_disp, p1, p2, params, timer, sample
     with timer("aggregate"):
         # The winners are taken row by row as the last pass completes each row's sum.
         disp_left, disp_right = semiglobal_disparities(cost, guide, min_disp=int(min_disp), p1=p1, p2=p2,
-                                                       edge_scale=params.sgm_edge_scale, paths=params.sgm_paths)
+                                                       edge_scale=params.sgm_edge_scale,
+                                                       paths=params.sgm_paths if paths is None else paths)
         del cost
     with timer("refine"):
         stable = left_right_stable(disp_left, disp_right, np.float32(1.0))

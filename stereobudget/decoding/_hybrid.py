@@ -107,7 +107,8 @@ def _hybrid_semiglobal(left_lp, right_lp, grids, guide, *, min_disp, num_disp, p
         scratch.recycle(rows)
         margin = typical_margin(cost, floor=0.0)
     return semiglobal_disparity(cost, guide, min_disp=min_disp, p1=params.sgm_p1 * margin,
-                                p2=params.hybrid_sgm_p2 * margin, params=params, timer=timer)
+                                p2=params.hybrid_sgm_p2 * margin, params=params, timer=timer,
+                                paths=params.hybrid_sgm_paths)
 
 
 def _hybrid_census_semiglobal(left_f, guide, samples, left_lp, right_lp, *, min_disp, num_disp, params, timer,
@@ -126,4 +127,4 @@ def _hybrid_census_semiglobal(left_f, guide, samples, left_lp, right_lp, *, min_
         margin = typical_margin(cost, floor=0.0)
     return semiglobal_disparity(cost, guide, min_disp=min_disp, p1=params.sgm_p1 * margin,
                                 p2=params.hybrid_sgm_p2 * margin, params=params, timer=timer,
-                                samples=samples)
+                                samples=samples, paths=params.hybrid_sgm_paths)
