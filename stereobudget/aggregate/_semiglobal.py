@@ -16,8 +16,9 @@ Volumes: the cost is uint8 or float32 (H, W, D).  The paths from above and those
 below are summed into two float32 (H, W, D) volumes, each pass on its own thread (8 bytes
 per pixel and disparity at the peak); the horizontal paths and the sum of the two are
 taken row by row in a (W, D) float32 buffer, where the winners are searched too, so the
-sum is never written out unless asked for (:func:`semiglobal_aggregate`).  The paths keep
-two rows of float32 (W, D) per direction.
+sum is never written out unless asked for (:func:`semiglobal_aggregate`); the right view's
+winners read a transposed copy of the row, float32 (D, W).  The paths keep two rows of
+float32 (W, D) per direction.
 
 Every sum is formed in one fixed order (paths from above, left to right, right to left,
 paths from below), so the fused route (:func:`semiglobal_disparities`) and the volume
@@ -162,19 +163,42 @@ def _row_total(cost, guide, p1, p2, edge_scale, down, up, y, row, path):
 
 
 @njit(cache=True)
-def _row_winners(row, min_disp, y, left, right):
-    """Left and right winners of row ``y`` from its aggregated cost ``row`` (W, D)."""
+def _row_winners(row, min_disp, y, left, right, layers, best_v, best_k):
+    """Left and right winners of row ``y`` from its aggregated cost ``row`` (W, D).
+
+    The right view's winner at ``xr`` is the first smallest ``row[xr + min_disp + k, k]``
+    over ``k`` (:func:`semiglobal_winners` walks that diagonal, one cache line per layer).
+    Here the row is transposed once into ``layers`` (D, W) and each layer is compared with
+    the best so far for every right pixel at once, in increasing ``k`` with a strict
+    ``<``: the same winners bit for bit, in vector instructions.  ``best_v`` (W,) float32
+    and ``best_k`` (W,) int32 are scratch.
+    """
     w, nd = row.shape
     for x in range(w):
         left[y, x] = subpixel_winner(row[x], min_disp)
-        best_r = -1
-        best_v = np.float32(np.inf)
         for k in range(nd):
-            xl = x + min_disp + k
-            if 0 <= xl < w and row[xl, k] < best_v:
-                best_v = row[xl, k]
-                best_r = k
-        right[y, x] = np.float32(min_disp + best_r) if best_r >= 0 else np.float32(np.nan)
+            layers[k, x] = row[x, k]
+    best_v[:] = np.inf
+    best_k[:] = -1
+    for k in range(nd):
+        # Right pixel xr meets layer k of left pixel xr + min_disp + k, when that is in the row.
+        lo = max(0, -min_disp - k)
+        hi = min(w, w - min_disp - k)
+        if hi <= lo:
+            continue
+        # Slices, so that the loop index is a plain count from 0 (no negative-index
+        # handling in the way of vectorising).
+        offered = layers[k, lo + min_disp + k:hi + min_disp + k]
+        values = best_v[lo:hi]
+        winners = best_k[lo:hi]
+        layer = np.int32(k)
+        for i in range(hi - lo):
+            v = offered[i]
+            b = values[i]
+            winners[i] = layer if v < b else winners[i]
+            values[i] = v if v < b else b
+    for x in range(w):
+        right[y, x] = np.float32(min_disp + best_k[x]) if best_k[x] >= 0 else np.float32(np.nan)
 
 
 #: Rows per task of the row-by-row kernels (each task allocates its buffers once).
@@ -200,9 +224,12 @@ def _horizontal_paths_winners(cost, guide, p1, p2, edge_scale, down, up, min_dis
     for block in prange((h + _ROW_BLOCK - 1) // _ROW_BLOCK):
         path = np.empty((2, nd), np.float32)
         row = np.empty((w, nd), np.float32)
+        layers = np.empty((nd, w), np.float32)
+        best_v = np.empty(w, np.float32)
+        best_k = np.empty(w, np.int32)
         for y in range(block * _ROW_BLOCK, min(h, (block + 1) * _ROW_BLOCK)):
             _row_total(cost, guide, p1, p2, edge_scale, down, up, y, row, path)
-            _row_winners(row, min_disp, y, left, right)
+            _row_winners(row, min_disp, y, left, right, layers, best_v, best_k)
     return left, right
 
 

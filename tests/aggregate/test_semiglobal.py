@@ -58,13 +58,17 @@ def test_fill_from_row_takes_the_nearest_valid_pixel():
 
 @pytest.mark.parametrize("paths", [4, 8])
 @pytest.mark.parametrize("dtype", [np.uint8, np.float32])
-def test_fused_winners_match_the_two_steps(paths, dtype):
+@pytest.mark.parametrize("min_disp, shape", [(2, (11, 23, 9)), (-3, (11, 23, 9)), (0, (5, 7, 12)), (-9, (4, 6, 5))])
+def test_fused_winners_match_the_two_steps(paths, dtype, min_disp, shape):
+    """The fused route's right winners (a transposed row, every layer at once) against the
+    diagonal walk, with negative ranges and more layers than columns; ties are frequent in
+    integer costs, so the first smallest must win in both."""
     rng = np.random.default_rng(7)
-    cost = rng.integers(0, 40, (11, 23, 9)).astype(dtype)
-    guide = rng.uniform(0, 255, (11, 23)).astype(np.float32)
+    cost = rng.integers(0, 40, shape).astype(dtype)
+    guide = rng.uniform(0, 255, shape[:2]).astype(np.float32)
     kwargs = dict(p1=2.5, p2=17.0, edge_scale=8.0, paths=paths)
-    left, right = semiglobal_disparities(cost, guide, min_disp=2, **kwargs)
-    want_left, want_right = semiglobal_winners(semiglobal_aggregate(cost, guide, **kwargs), 2)
+    left, right = semiglobal_disparities(cost, guide, min_disp=min_disp, **kwargs)
+    want_left, want_right = semiglobal_winners(semiglobal_aggregate(cost, guide, **kwargs), min_disp)
     np.testing.assert_array_equal(left, want_left)
     np.testing.assert_array_equal(right, want_right)
 
