@@ -33,6 +33,7 @@ from .._kernels._prefetch import prefetch_row
 from .._kernels._simd import LANES, skewed_block_copy
 from ..fill._grid import SliceGrids, slice_pixel, slice_scratch
 from ..cost._cost import dense_pixel_costs, gradient_sources, reversed_right_row
+from .._kernels._jit import NO_REFCOUNTS
 from .._kernels._scratch import empty_volume
 
 #: Image rows per parallel work item (each item allocates its own W x D row buffer).
@@ -121,14 +122,13 @@ class FillMix(NamedTuple):
     dense_weight: np.float32
 
 
-@njit(cache=True, parallel=True)
-def _pair_rows(pair, min_disp, terms, grids, mix, left_row_of_pixel, right_row_of_pixel, left_rows, right_rows):
-    """Left costs of each image row into ``left_rows``, the right view's into ``right_rows``.
+@njit(cache=True, error_model="numpy", **NO_REFCOUNTS)
+def _pair_item(first_row, last_row, pair, min_disp, terms, grids, mix, left_row_of_pixel, right_row_of_pixel,
+               left_rows, right_rows, buffer, rev, dense, den, corner_index, band_index, corner_weight, starts):
+    """Image rows ``[first_row, last_row)`` of :func:`_pair_rows`, on one work item's scratch.
 
-    ``pair``: :class:`DensePair`, ``terms``: :class:`DenseTerms`, ``grids``: :class:`SliceGrids`,
-    ``mix``: :class:`FillMix`.
-    With ``mix.use_grids`` the cost is ``grid_weight * slice + dense_weight * dense``, else the
-    dense cost.  ``right_rows`` with no rows skips the right view.
+    A kernel of its own, not inlined into the parallel loop: numba's parallel passes then see
+    one call, not the inlined fill and costs, and the pair kernels compile in a fraction of the time.
     """
     left, right, left_gray, right_gray = pair
     truncation, grad_truncation, grad_weight = terms
@@ -139,46 +139,63 @@ def _pair_rows(pair, min_disp, terms, grids, mix, left_row_of_pixel, right_row_o
     with_right = right_rows.shape[0] > 0
     left_flat = left_rows.reshape(left_rows.size)
     right_flat = right_rows.reshape(right_rows.size)
-    # Rows past the image that the right view's diagonals read (the clamped border column).
-    border_rows = max(min_disp, 0) + num_disp + LANES if with_right else 0
+    border_rows = buffer.shape[0] - w
     first_column = -(min_disp + num_disp - 1)
-    span = (w - 1 - min_disp) - first_column + 1
-    for item in prange((h + _ROWS_PER_ITEM - 1) // _ROWS_PER_ITEM):
-        buffer = np.empty((w + border_rows, num_disp), dtype=np.float32)
-        rev = np.empty((channels + 1, span), dtype=np.float32)
-        dense = np.empty(num_disp, dtype=np.float32)
-        den, corner_index, band_index, corner_weight = slice_scratch(num_disp)
-        starts = np.empty(LANES, dtype=np.int64)
-        for y in range(item * _ROWS_PER_ITEM, min((item + 1) * _ROWS_PER_ITEM, h)):
-            reversed_right_row(right, right_gray, y, first_column, use_grad, rev)
-            for x in range(w):
-                if x + _PREFETCH_AHEAD < w:
-                    prefetch_row(left_flat, left_row_of_pixel[y * w + x + _PREFETCH_AHEAD], num_disp)
-                if with_right:
-                    # The right view's rows are written after this image row's costs: asked
-                    # for now, their lines arrive during the row's work (asked for just
-                    # before the copy, in a burst, they cost the kernel ~15 %).
-                    prefetch_row(right_flat, right_row_of_pixel[y * w + x], num_disp)
-                o = buffer[x]
-                target = left_rows[left_row_of_pixel[y * w + x]]
-                if use_grids:
-                    slice_pixel(grids, guide, y, x, o, den, corner_index, band_index, corner_weight)
-                    dense_pixel_costs(left, left_gray, y, x, rev, min_disp, first_column, truncation,
-                                      grad_truncation, grad_weight, dense)
-                    for i in range(num_disp):  # the mix stored to the buffer and the volume in one loop
-                        mixed = grid_weight * o[i] + dense_weight * dense[i]
-                        o[i] = mixed
-                        target[i] = mixed
-                else:
-                    dense_pixel_costs(left, left_gray, y, x, rev, min_disp, first_column, truncation,
-                                      grad_truncation, grad_weight, o)
-                    for i in range(num_disp):
-                        target[i] = o[i]
+    for y in range(first_row, last_row):
+        reversed_right_row(right, right_gray, y, first_column, use_grad, rev)
+        for x in range(w):
+            if x + _PREFETCH_AHEAD < w:
+                prefetch_row(left_flat, left_row_of_pixel[y * w + x + _PREFETCH_AHEAD], num_disp)
             if with_right:
-                last = buffer[w - 1]
-                for k in range(w, w + border_rows):
-                    buffer[k, :] = last
-                _gather_right_rows(buffer, w, y, min_disp, right_rows, right_flat, right_row_of_pixel, starts)
+                # The right view's rows are written after this image row's costs: asked
+                # for now, their lines arrive during the row's work (asked for just
+                # before the copy, in a burst, they cost the kernel ~15 %).
+                prefetch_row(right_flat, right_row_of_pixel[y * w + x], num_disp)
+            o = buffer[x]
+            target = left_rows[left_row_of_pixel[y * w + x]]
+            if use_grids:
+                slice_pixel(grids, guide, y, x, o, den, corner_index, band_index, corner_weight)
+                dense_pixel_costs(left, left_gray, y, x, rev, min_disp, first_column, truncation,
+                                  grad_truncation, grad_weight, dense)
+                for i in range(num_disp):  # the mix stored to the buffer and the volume in one loop
+                    mixed = grid_weight * o[i] + dense_weight * dense[i]
+                    o[i] = mixed
+                    target[i] = mixed
+            else:
+                dense_pixel_costs(left, left_gray, y, x, rev, min_disp, first_column, truncation,
+                                  grad_truncation, grad_weight, o)
+                for i in range(num_disp):
+                    target[i] = o[i]
+        if with_right:
+            last = buffer[w - 1]
+            for k in range(w, w + border_rows):
+                row = buffer[k]
+                for i in range(num_disp):  # an array assignment would need numba's reference counts
+                    row[i] = last[i]
+            _gather_right_rows(buffer, w, y, min_disp, right_rows, right_flat, right_row_of_pixel, starts)
+
+
+@njit(cache=True, parallel=True)
+def _pair_rows(pair, min_disp, terms, grids, mix, left_row_of_pixel, right_row_of_pixel, left_rows, right_rows):
+    """Left costs of each image row into ``left_rows``, the right view's into ``right_rows``.
+
+    ``pair``: :class:`DensePair`, ``terms``: :class:`DenseTerms`, ``grids``: :class:`SliceGrids`,
+    ``mix``: :class:`FillMix`.
+    With ``mix.use_grids`` the cost is ``grid_weight * slice + dense_weight * dense``, else the
+    dense cost.  ``right_rows`` with no rows skips the right view.
+    """
+    h, w, channels = pair.left.shape
+    num_disp = left_rows.shape[1]
+    # Rows past the image that the right view's diagonals read (the clamped border column).
+    border_rows = max(min_disp, 0) + num_disp + LANES if right_rows.shape[0] > 0 else 0
+    span = w + num_disp - 1  # columns -(min_disp + num_disp - 1) .. w - 1 - min_disp of the right image
+    for item in prange((h + _ROWS_PER_ITEM - 1) // _ROWS_PER_ITEM):
+        den, corner_index, band_index, corner_weight = slice_scratch(num_disp)
+        _pair_item(item * _ROWS_PER_ITEM, min((item + 1) * _ROWS_PER_ITEM, h), pair, min_disp, terms, grids, mix,
+                   left_row_of_pixel, right_row_of_pixel, left_rows, right_rows,
+                   np.empty((w + border_rows, num_disp), dtype=np.float32),
+                   np.empty((channels + 1, span), dtype=np.float32), np.empty(num_disp, dtype=np.float32),
+                   den, corner_index, band_index, corner_weight, np.empty(LANES, dtype=np.int64))
 
 
 def _no_grids(num_disp: int) -> SliceGrids:
