@@ -307,8 +307,9 @@ def _splat_lattice(lattice, samples, pixels, min_disp, cost_terms, scales, grids
                             np.empty(8, dtype=np.uint64), np.empty(8, dtype=np.int64))
     for p in prange(parts):
         if shared_cells[p] >= 0:
-            _splat_lattice_rows(part_rows[p], part_rows[p + 1], 0, shared_cells[p], lattice, samples, pixels,
-                                min_disp, cost_terms, scales, grids, np.empty(8, dtype=np.float64),
+            # np.int64(0), not 0: a literal would compile the rows' kernel a second time.
+            _splat_lattice_rows(part_rows[p], part_rows[p + 1], np.int64(0), shared_cells[p], lattice, samples,
+                                pixels, min_disp, cost_terms, scales, grids, np.empty(8, dtype=np.float64),
                                 np.empty(8, dtype=np.uint64), np.empty(8, dtype=np.int64))
 
 
