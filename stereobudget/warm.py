@@ -24,7 +24,7 @@ from .decoding._methods import METHODS
 
 #: Methods by process when warming on two: each group about half of the compile time
 #: (docs/performance.md has the figures), the methods that share kernels together.
-GROUPS = (("hybrid",), ("downsample", "sparse", "full"))
+GROUPS = (("hybrid", "full"), ("sparse", "downsample"))
 KINDS = ("rgb", "gray")
 
 
