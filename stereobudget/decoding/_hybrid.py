@@ -115,9 +115,17 @@ def _hybrid_census_semiglobal(left_f, guide, samples, left_lp, right_lp, *, min_
                               weight):
     """Hybrid with a radiometrically robust dense term: the Sparse fill mixed with the census
     of the low-passed pair at the grid's spacing, aggregated on semi-global paths."""
-    p = samples.pattern
     with timer("jbf_fill"):
         cost = sparse_filled_cost(left_f, guide, samples, min_disp=min_disp, num_disp=num_disp, params=params)
+    return census_semiglobal_tail(cost, guide, samples, left_lp, right_lp, min_disp=min_disp, params=params,
+                                  timer=timer, weight=weight)
+
+
+def census_semiglobal_tail(cost, guide, samples, left_lp, right_lp, *, min_disp, params, timer, weight):
+    """What the default Hybrid runs after the Sparse fill ``cost`` (H, W, D): the census of the
+    low-passed pair mixed in, the semi-global paths, the checks and the row fill.  Its own
+    function so that ``python -m stereobudget.warm`` can compile it apart from the fill."""
+    p = samples.pattern
     with timer("cost"):
         cost = np.ascontiguousarray(cost, np.float32)
         left_codes = spaced_census(to_gray(left_lp), spacing_x=p.stride_x, spacing_y=p.stride_y)

@@ -298,7 +298,10 @@ def decode_arrays(left, samples, job: DecodeJob, *, left_name: str, samples_name
             # After an install or upgrade numba compiles for minutes: say so before the
             # first kernel runs (a batch says it once, in the command).
             from .._kernels._first_run import announce_first_compile
-            announce_first_compile()
+            if announce_first_compile() and (job.method or DEFAULT_METHOD) == "hybrid":
+                # The second core compiles the decode's later kernels meanwhile.
+                from ..warm import start_hybrid_tail
+                start_hybrid_tail("gray" if left.ndim == 2 else "rgb")
         t = time.perf_counter()
         if auto or check_setup:
             with compile_notice(job.method or DEFAULT_METHOD):    # names the method, not the range estimate
