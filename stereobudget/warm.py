@@ -111,7 +111,7 @@ def start_hybrid_tail(kind: str):
         child = subprocess.Popen([sys.executable, "-m", "stereobudget.warm", "--hybrid-tail", "--kinds", kind],
                                  cwd=home, stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL,
                                  stderr=subprocess.DEVNULL)
-    except OSError:
+    except (OSError, ValueError, TypeError):   # no interpreter to start (embedded), no processes left
         return None
 
     def finish():

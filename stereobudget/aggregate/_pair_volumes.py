@@ -112,12 +112,11 @@ class DenseTerms(NamedTuple):
 
 
 class FillMix(NamedTuple):
-    """Hybrid's mean of the fill sliced from its grids and the dense cost (``use_grids`` False: the
-    dense cost alone).  The grids themselves travel as an argument of their own: numba's parallel
-    loops cannot unpack a tuple nested in a tuple."""
+    """Hybrid's mean of the fill sliced from its grids and the dense cost.  The grids themselves
+    travel as an argument of their own (None: the dense cost alone): numba's parallel loops cannot
+    unpack a tuple nested in a tuple."""
 
     guide: np.ndarray        # float32 (H, W), gray I1; (1, 1) without grids
-    use_grids: bool
     grid_weight: np.float32
     dense_weight: np.float32
 
@@ -132,7 +131,7 @@ def _pair_item(first_row, last_row, pair, min_disp, terms, grids, mix, left_row_
     """
     left, right, left_gray, right_gray = pair
     truncation, grad_truncation, grad_weight = terms
-    guide, use_grids, grid_weight, dense_weight = mix
+    guide, grid_weight, dense_weight = mix
     h, w, channels = left.shape
     num_disp = left_rows.shape[1]
     use_grad = grad_weight > 0
@@ -153,7 +152,7 @@ def _pair_item(first_row, last_row, pair, min_disp, terms, grids, mix, left_row_
                 prefetch_row(right_flat, right_row_of_pixel[y * w + x], num_disp)
             o = buffer[x]
             target = left_rows[left_row_of_pixel[y * w + x]]
-            if use_grids:
+            if grids is not None:  # decided when compiling: the dense-only kernel has no slice
                 slice_pixel(grids, guide, y, x, o, den, corner_index, band_index, corner_weight)
                 dense_pixel_costs(left, left_gray, y, x, rev, min_disp, first_column, truncation,
                                   grad_truncation, grad_weight, dense)
@@ -179,10 +178,9 @@ def _pair_item(first_row, last_row, pair, min_disp, terms, grids, mix, left_row_
 def _pair_rows(pair, min_disp, terms, grids, mix, left_row_of_pixel, right_row_of_pixel, left_rows, right_rows):
     """Left costs of each image row into ``left_rows``, the right view's into ``right_rows``.
 
-    ``pair``: :class:`DensePair`, ``terms``: :class:`DenseTerms`, ``grids``: :class:`SliceGrids`,
-    ``mix``: :class:`FillMix`.
-    With ``mix.use_grids`` the cost is ``grid_weight * slice + dense_weight * dense``, else the
-    dense cost.  ``right_rows`` with no rows skips the right view.
+    ``pair``: :class:`DensePair`, ``terms``: :class:`DenseTerms`, ``grids``: :class:`SliceGrids`
+    or None, ``mix``: :class:`FillMix`.
+    With grids the cost is ``grid_weight * slice + dense_weight * dense``, else the dense cost.  ``right_rows`` with no rows skips the right view.
     """
     h, w, channels = pair.left.shape
     num_disp = left_rows.shape[1]
@@ -196,18 +194,6 @@ def _pair_rows(pair, min_disp, terms, grids, mix, left_row_of_pixel, right_row_o
                    np.empty((w + border_rows, num_disp), dtype=np.float32),
                    np.empty((channels + 1, span), dtype=np.float32), np.empty(num_disp, dtype=np.float32),
                    den, corner_index, band_index, corner_weight, np.empty(LANES, dtype=np.int64))
-
-
-def _no_grids(num_disp: int) -> SliceGrids:
-    """Empty grids of the right types, for the dense-only specialisation of the kernel."""
-    f = np.float32
-    return SliceGrids(values=np.zeros((0, num_disp), f), base_weights=np.zeros((0, 1), f),
-                      band_weights=np.zeros((0, num_disp), f), spatial_values=np.zeros((0, 0, num_disp), f),
-                      spatial_base=np.zeros((0, 0, 1), f), spatial_band=np.zeros((0, 0, num_disp), f),
-                      first_band_layer=np.zeros(0, np.int64), first_missing_layer=np.zeros(0, np.int64),
-                      layer_base=np.zeros(num_disp, np.int64),
-                      gy=0, gx=0, gz=0, band=0, inv_cell_s=f(1.0), inv_cell_r=f(1.0), eps=f(0.0),
-                      missing_value=f(0.0))
 
 
 def pair_cost_rows(left: np.ndarray, right: np.ndarray, *, min_disp: int, num_disp: int, truncation: float,
@@ -257,9 +243,9 @@ def pair_cost_rows(left: np.ndarray, right: np.ndarray, *, min_disp: int, num_di
     empty_rows = np.zeros(0, np.int64)
     terms = DenseTerms(np.float32(truncation), np.float32(grad_truncation), np.float32(grad_weight))
     mix = FillMix(np.ascontiguousarray(guide, np.float32) if use_grids else np.zeros((1, 1), np.float32),
-                  use_grids, np.float32(mix_weights[0]), np.float32(mix_weights[1]))
-    _pair_rows(DensePair(left, right, left_gray, right_gray), int(min_disp), terms,
-               grids if use_grids else _no_grids(int(num_disp)), mix, left_layout.row_of_pixel,
+                  np.float32(mix_weights[0]), np.float32(mix_weights[1]))
+    _pair_rows(DensePair(left, right, left_gray, right_gray), int(min_disp), terms, grids, mix,
+               left_layout.row_of_pixel,
                right_layout.row_of_pixel if right_layout is not None else empty_rows,
                left_rows, right_rows)
     return left_rows, (right_rows if right_layout is not None else None)
