@@ -34,7 +34,7 @@ COMPILE_SECONDS = 30
 #: Wall time of each method's first decode on one core (8-bit RGB, 640x480, ``--max-disp 64``)
 #: on the project's 2-core machine, idle, one after another from an empty cache in this order (a
 #: later method reuses the kernels an earlier one compiled): see docs/performance.md.
-METHOD_COMPILE_SECONDS = {"hybrid": 70, "sparse": 20, "downsample": 45, "full": 12, "range": 3}
+METHOD_COMPILE_SECONDS = {"hybrid": 70, "sparse": 20, "downsample": 30, "full": 12, "range": 3}
 WARM_COMMAND = "python -m stereobudget.warm"
 
 _announced = threading.Event()
