@@ -27,7 +27,7 @@ log = logging.getLogger("stereobudget")
 #: census cost): if none of them is cached, nothing is.
 PROBE_MODULES = ("stereobudget.aggregate._tree", "stereobudget.aggregate._semiglobal", "stereobudget.cost._census")
 #: Wall time of the first Hybrid ``sb-decode`` (with the range estimate, one 8-bit RGB
-#: 640x480 pair) from an empty NUMBA_CACHE_DIR on the project's 2-core machine, idle: 29 s,
+#: 640x480 pair) from an empty NUMBA_CACHE_DIR on the project's 2-core machine, idle: 30 s,
 #: with a second process compiling the decode's later kernels (``stereobudget.warm.start_hybrid_tail``;
 #: longer on a busy machine).
 COMPILE_SECONDS = 30
