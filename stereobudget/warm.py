@@ -58,14 +58,14 @@ def warm_method(method: str, *, kinds=KINDS) -> float:
 
 
 def warm_hybrid_tail(*, kinds=KINDS) -> float:
-    """Compile what a default Hybrid decode runs after its fill, and nothing before it; returns the seconds taken.
+    """Compile the kernels a default Hybrid decode runs after its splat; returns the seconds taken.
 
-    That is the check against the samples and the recovered right image (whose fill of the
-    right image slices its grids as the decode's fill does), then the census mixed into the
+    First the check against the samples and the recovered right image, whose fill blurs and
+    slices its grids with the kernels of the decode's fill; then the census mixed into the
     fill, the semi-global paths, the checks and the row fill, on tiny pairs whose fill is
-    random.  Run in a second process beside a first decode, which compiles
-    the fill meanwhile, it has these kernels in the cache by the time that decode reaches
-    them: the first decode then takes the time of its fill's kernels, not of all of them.
+    random.  The range estimate, the low-pass and the splat are left out.  Run in a second
+    process beside a first decode, which compiles those meanwhile, it has the rest in the
+    cache by the time that decode reaches it (or most of it).
     """
     import numpy as np
 
@@ -171,7 +171,7 @@ def main(argv=None) -> int:
     if unknown:
         parser.error(f"unknown method(s) {', '.join(unknown)}; expected {', '.join(METHODS)}")
     logging.basicConfig(format="%(message)s", stream=sys.stderr)
-    print(f"compiling the kernels of {', '.join(methods)} unless cached (a few minutes once after an install, "
+    print(f"compiling the kernels of {', '.join(methods)} unless cached (about a minute once after an install, "
           f"{max(1, args.jobs)} process(es))", file=sys.stderr, flush=True)
     seconds = warm(methods, jobs=args.jobs, kinds=kinds,
                    report=lambda text: print(text, file=sys.stderr, flush=True))
