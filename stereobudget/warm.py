@@ -28,27 +28,45 @@ GROUPS = (("hybrid", "full"), ("sparse", "downsample"))
 KINDS = ("rgb", "gray")
 
 
+def _tiny_pair(kind: str, pattern):
+    """A small synthetic scene (``kind`` "rgb" or "gray") and its right image's samples on ``pattern``.
+
+    Large enough (24576 pixels) for the tree walks' two-thread paths, which a small image
+    does not take and a camera frame does.  Compiling is what the caller asked for, so the
+    first-use notice is silenced.
+    """
+    from .encoding import encode_image
+    from .scenes._scenes import make_scene
+    from ._kernels import _first_run
+
+    _first_run._announced.set()
+    scene = make_scene("slanted", height=128, width=192, max_disp=8, gray=kind == "gray")
+    return scene, encode_image(scene.right, pattern=pattern)
+
+
+def _warm_process(args, **popen):
+    """``python -m stereobudget.warm ARGS`` in a process of its own.
+
+    It runs beside this package's folder, so that it imports this copy of the package (not
+    one that its working directory would shadow it with) and fills its cache.
+    """
+    home = Path(__file__).resolve().parents[1]
+    return subprocess.Popen([sys.executable, "-m", "stereobudget.warm", *args], cwd=home, **popen)
+
+
 def warm_method(method: str, *, kinds=KINDS) -> float:
     """Run every kernel ``sb-decode --method METHOD`` runs, on tiny pairs; returns the seconds taken."""
     from .decoding import Decoder
     from .decoding._checks import psnr_at_samples
     from .decoding._disprange import resolve_range
-    from .encoding import encode_image
     from .sampling._patterns import SamplingPattern
-    from .scenes._scenes import make_scene
     from .pipeline._jobs import recover_right_image
-    from ._kernels import _first_run
-
-    _first_run._announced.set()       # compiling is what was asked for: no first-use notice
 
     start = time.perf_counter()
     pattern = {"full": SamplingPattern("grid", 1, 1), "downsample": SamplingPattern("downsample", 4, 4)}.get(
         method, SamplingPattern("grid", 5, 5))
     for kind in kinds:
-        # Large enough (24576 pixels) for the tree walks' two-thread paths, which a small
-        # image does not take and a camera frame does.
-        scene = make_scene("slanted", height=128, width=192, max_disp=8, gray=kind == "gray")
-        samples = encode_image(scene.right, pattern=pattern)
+        scene, samples = _tiny_pair(kind, pattern)
         min_disp, max_disp, _ = resolve_range(scene.left, samples, max_disp=8)
         with Decoder(keep_freed_memory=False) as decoder:
             result = decoder.decode(scene.left, samples, max_disp=max_disp, min_disp=min_disp, method=method)
@@ -73,18 +91,13 @@ def warm_hybrid_tail(*, kinds=KINDS) -> float:
     from .decoding._checks import psnr_at_samples
     from .decoding._hybrid import census_semiglobal_tail, hybrid_weight
     from .decoding._params import DecoderParams, StageTimer
-    from .encoding import encode_image
     from .sampling._patterns import SamplingPattern
-    from .scenes._scenes import make_scene
     from .pipeline._jobs import recover_right_image
-    from ._kernels import _first_run
 
-    _first_run._announced.set()
     start = time.perf_counter()
     rng = np.random.default_rng(0)
     for kind in kinds:
-        scene = make_scene("slanted", height=128, width=192, max_disp=8, gray=kind == "gray")
-        samples = encode_image(scene.right, pattern=SamplingPattern("grid", 5, 5))
+        scene, samples = _tiny_pair(kind, SamplingPattern("grid", 5, 5))
         # The right image first: its fill slices its grids with the decode's fill kernels,
         # which the decode reaches before its semi-global paths (the other order measured
         # slower: the decode then compiled its whole fill itself).
@@ -108,11 +121,9 @@ def start_hybrid_tail(kind: str):
     could not start (the decode then compiles everything itself, as before).
     """
     import atexit
-    home = Path(__file__).resolve().parents[1]
     try:
-        child = subprocess.Popen([sys.executable, "-m", "stereobudget.warm", "--hybrid-tail", "--kinds", kind],
-                                 cwd=home, stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL,
-                                 stderr=subprocess.DEVNULL)
+        child = _warm_process(["--hybrid-tail", "--kinds", kind], stdin=subprocess.DEVNULL,
+                              stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     except (OSError, ValueError, TypeError):   # no interpreter to start (embedded), no processes left
         return None
 
@@ -140,11 +151,7 @@ def warm(methods=METHODS, *, jobs: int = 2, kinds=KINDS, report=print) -> float:
     other = [m for m in methods if not any(m in g for g in groups)]
     if other:
         groups[-1].extend(other)
-    # The child runs beside this package's folder, so that it imports this copy of the
-    # package (not one that its working directory would shadow it with) and fills its cache.
-    home = Path(__file__).resolve().parents[1]
-    children = [subprocess.Popen([sys.executable, "-m", "stereobudget.warm", "--jobs", "1", "--methods",
-                                  ",".join(group), "--kinds", ",".join(kinds)], cwd=home)
+    children = [_warm_process(["--jobs", "1", "--methods", ",".join(group), "--kinds", ",".join(kinds)])
                 for group in groups[1:]]
     for method in groups[0]:
         report(f"{method}: {warm_method(method, kinds=kinds):.1f} s")

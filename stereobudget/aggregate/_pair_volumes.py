@@ -180,7 +180,8 @@ def _pair_rows(pair, min_disp, terms, grids, mix, left_row_of_pixel, right_row_o
 
     ``pair``: :class:`DensePair`, ``terms``: :class:`DenseTerms`, ``grids``: :class:`SliceGrids`
     or None, ``mix``: :class:`FillMix`.
-    With grids the cost is ``grid_weight * slice + dense_weight * dense``, else the dense cost.  ``right_rows`` with no rows skips the right view.
+    With grids the cost is ``grid_weight * slice + dense_weight * dense``, else the dense cost.
+    ``right_rows`` with no rows skips the right view.
     """
     h, w, channels = pair.left.shape
     num_disp = left_rows.shape[1]

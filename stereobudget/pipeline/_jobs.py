@@ -277,6 +277,7 @@ def decode_arrays(left, samples, job: DecodeJob, *, left_name: str, samples_name
     from ..decoding import _disprange as disprange
     from .._kernels._first_run import compile_notice
     auto = disprange.is_auto(job.max_disp)
+    method = job.method or DEFAULT_METHOD
     raw_left, raw_samples = left, samples
     rectification = None
     try:
@@ -298,13 +299,13 @@ def decode_arrays(left, samples, job: DecodeJob, *, left_name: str, samples_name
             # After an install or upgrade numba compiles for minutes: say so before the
             # first kernel runs (a batch says it once, in the command).
             from .._kernels._first_run import announce_first_compile
-            if announce_first_compile() and (job.method or DEFAULT_METHOD) == "hybrid":
+            if announce_first_compile() and method == "hybrid":
                 # The second core compiles the decode's later kernels meanwhile.
                 from ..warm import start_hybrid_tail
                 start_hybrid_tail("gray" if left.ndim == 2 else "rgb")
         t = time.perf_counter()
         if auto or check_setup:
-            with compile_notice(job.method or DEFAULT_METHOD):    # names the method, not the range estimate
+            with compile_notice(method):    # names the method, not the range estimate
                 min_disp, max_disp, estimate = disprange.resolve_range(left, samples, max_disp=job.max_disp,
                                                                        min_disp=job.min_disp)
         else:
@@ -318,7 +319,6 @@ def decode_arrays(left, samples, job: DecodeJob, *, left_name: str, samples_name
         log.info("%s: disparity range %d..%d (estimated from %d matches in %.2f s)", left_name, min_disp,
                  max_disp, estimate.votes, estimate.seconds)
 
-    method = job.method or DEFAULT_METHOD
     # A process that decodes file after file: each decode takes over the last one's memory.
     decoder = decoder or decoders.shared_decoder()
     try:
