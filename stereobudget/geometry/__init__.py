@@ -19,5 +19,6 @@ __getattr__, __dir__, __all__ = attach(__name__, {
     '_output': ['DEPTH_EXTENSIONS', 'PNG_DEPTH_MAX_M', 'encode_depth', 'write_depth', 'read_depth', 'encode_ply',
                 'write_ply'],
     '_synthetic': ['UnrectifiedPair', 'unrectify_pair', 'write_calibration'],
-    '_selfrect': ['MIN_MATCHES', 'MAX_RESIDUAL', 'SelfRectificationReport', 'match_lattice', 'self_rectification'],
+    '_selfrect': ['MIN_MATCHES', 'MAX_RESIDUAL', 'CHECK_EVERY', 'SelfRectificationReport', 'SelfRectifiedStream',
+                  'match_lattice', 'frame_residual', 'self_rectification'],
 })

@@ -1,22 +1,23 @@
-"""Self-rectification (experimental): the epipolar geometry from I1 and the samples alone.
-
-Not offered by ``sb-decode`` yet: on the unrectified realdev pairs of
-``scripts/unrectified.py --variants self`` it decodes some scenes as well as the known
-calibration and others far worse, and neither its residual nor its uncertainty tells them
-apart well enough to refuse the bad ones (docs/results.md).
+"""Self-rectification (``sb-decode --calibration auto``): the epipolar geometry from I1 and the samples alone.
 
 The right camera's grid is a decimated right image, so it can be matched with I1 read at
 the grid's spacing (:func:`match_lattice`), which gives point pairs in full-resolution
-pixels, refined to a fraction of a pixel; ``cv2.findFundamentalMat`` (RANSAC) keeps the
-consistent ones.  The pair is then modelled as a side-by-side rig whose cameras are each
-turned a little from one rectified orientation, with a radial distortion k1 per lens and a
-shared focal length, fitted to the matches' rows from the untouched rig (an essential
-matrix's pose of a nearly rectified pair is poorly conditioned: it can align the rows while
-tilting the baseline far forward), and rectified as a calibrated pair (alpha 1: nothing
-either camera sees is cropped).  The residual vertical error of the matches the fit did
-not see, and the fit's own uncertainty carried over the frame, are reported; too few
-reliable matches, a residual too large, or a rectification that shrinks the image is
-refused in one line rather than decoded into garbage.  There is no metric scale.
+pixels, refined to a fraction of a pixel through an affine map of each patch;
+``cv2.findFundamentalMat`` (RANSAC) keeps the consistent ones.  The pair is then modelled
+as a side-by-side rig whose cameras are each turned a little from one rectified
+orientation, with a radial distortion k1 per lens and a shared focal length, fitted to the
+matches' rows from the untouched rig (an essential matrix's pose of a nearly rectified pair
+is poorly conditioned: it can align the rows while tilting the baseline far forward).  The
+matches the rig is fitted to are chosen by a RANSAC on the rig itself: the few wrong
+matches the fundamental matrix lets through would otherwise pull the rows pixels away from
+the good ones.  The pair is rectified as a calibrated one (alpha 1: nothing either camera
+sees is cropped).  The residual vertical error of the matches the fit did not see, and the
+fit's own uncertainty carried over the frame, are reported; too few reliable matches, a
+residual too large, or a rectification that shrinks the image is refused in one line
+rather than decoded into garbage.  There is no metric scale.
+
+A stream (:class:`SelfRectifiedStream`) estimates once, checks its rows on fresh matches
+every so many frames (:func:`frame_residual`) and estimates again when they drift.
 """
 
 from __future__ import annotations
@@ -34,7 +35,7 @@ MIN_MATCHES = 40
 MAX_RESIDUAL = 0.5
 #: Patches matched: side in samples, how many (spread over the frame).
 PATCH = 9
-PATCHES = 1536
+PATCHES = 4096
 #: Least gray-level spread of a patch worth matching, least correlation of a match, and
 #: least margin over the best correlation elsewhere (repetitive textures fail it).
 MIN_TEXTURE = 6.0
@@ -45,6 +46,17 @@ MIN_SCALE = 0.5
 #: Weight of the prior that keeps the cameras' common pan (turn about the vertical) small: the
 #: rows see it only through the scene's depth, while it moves both images sideways.
 PAN_PRIOR = 3.0
+#: The rig's RANSAC: hypotheses, matches fitted by each (and its Levenberg-Marquardt steps),
+#: and the row error (px) within which a match agrees with a rig.
+RIG_HYPOTHESES = 60
+RIG_SAMPLE = 16
+RIG_SAMPLE_ITERATIONS = 20
+RIG_AGREEMENT = 0.6
+#: A stream checks its estimate every this many frames, on this many patches, and estimates
+#: again when their median row error exceeds this multiple of the estimate's own.
+CHECK_EVERY = 30
+CHECK_PATCHES = 256
+CHECK_GROWTH = 2.0
 
 
 @dataclass(frozen=True)
@@ -178,43 +190,52 @@ def match_lattice(left: np.ndarray, samples: SampleSet, *, patch: int = PATCH, c
     return pts_left, np.array(pts_right, np.float64).reshape(-1, 2)
 
 
-def _refine_matches(left_gray, templates, centres, sx, sy, iterations: int = 8):
+def _refine_matches(left_gray, templates, centres, sx, sy, iterations: int = 10):
     """Each match's centre in I1 to a fraction of a pixel: Gauss-Newton on the squared
-    difference between the template and I1 read bilinearly at the grid's spacing, with a gain
-    and an offset per match (the cameras' exposures differ).  A match whose step runs away
-    (more than a pixel from where it started) keeps its whole-pixel position."""
+    difference between the template and I1 read bilinearly at the grid's spacing, through an
+    affine map of the patch (the two cameras see a patch turned, scaled and sheared a little
+    against each other, which at a coarse grid's span shifts its edges by a good part of a
+    pixel) with a gain and an offset per match (the cameras' exposures differ).  A match whose
+    centre runs away (more than a pixel from where it started) keeps its whole-pixel position."""
     import cv2
 
     n, rows, cols = templates.shape
     gx = cv2.Sobel(left_gray, cv2.CV_32F, 1, 0, ksize=3, scale=1 / 8)
     gy = cv2.Sobel(left_gray, cv2.CV_32F, 0, 1, ksize=3, scale=1 / 8)
-    offsets_x = ((np.arange(cols) - cols // 2) * sx).astype(np.float32)
-    offsets_y = ((np.arange(rows) - rows // 2) * sy).astype(np.float32)
-    start = centres.astype(np.float32)
-    current = start.copy()
+    # Each template sample's offset (full-resolution pixels) from the patch's centre.
+    across = np.broadcast_to(((np.arange(cols) - cols // 2) * sx)[None, :], (rows, cols)).ravel()
+    down = np.broadcast_to(((np.arange(rows) - rows // 2) * sy)[:, None], (rows, cols)).ravel()
+    start = centres.astype(np.float64)
+    # Per match: centre (x, y) and the affine part (x from across, x from down, y from across,
+    # y from down) less the identity.
+    centre = start.copy()
+    affine = np.zeros((n, 4))
     t = templates.reshape(n, -1).astype(np.float64)
+    # cv2.remap takes maps of fewer than 32767 rows: the patches are read a block at a time.
+    block = max(1, 32000 // rows)
     for _ in range(iterations):
-        map_x = (current[:, 0, None, None] + offsets_x[None, None, :]) * np.ones((1, rows, 1), np.float32)
-        map_y = (current[:, 1, None, None] + offsets_y[None, :, None]) * np.ones((1, 1, cols), np.float32)
-        map_x, map_y = map_x.reshape(n * rows, cols), map_y.reshape(n * rows, cols)
+        map_x = (centre[:, :1] + (1 + affine[:, :1]) * across + affine[:, 1:2] * down).astype(np.float32)
+        map_y = (centre[:, 1:] + affine[:, 2:3] * across + (1 + affine[:, 3:]) * down).astype(np.float32)
 
         def read(image):
-            return cv2.remap(image, map_x, map_y, cv2.INTER_LINEAR,
-                             borderMode=cv2.BORDER_REPLICATE).reshape(n, -1).astype(np.float64)
+            return np.concatenate([
+                cv2.remap(image, map_x[i:i + block].reshape(-1, cols), map_y[i:i + block].reshape(-1, cols),
+                          cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE).reshape(-1, rows * cols)
+                for i in range(0, n, block)]).astype(np.float64)
 
         values, dx, dy = read(left_gray), read(gx), read(gy)
-        # Unknowns per match: shift (ux, uy), gain a, offset b in a * I1(p + u) + b = T(p).
-        ones = np.ones_like(values)
-        jac = np.stack([dx, dy, values, ones], axis=2)                       # (n, m, 4)
-        residual = t - values                                                  # at a = 1, b = 0 (relinearised)
-        # Solve for (ux, uy, a - 1, b) in the least-squares sense.
-        normal = np.einsum("nmi,nmj->nij", jac, jac) + 1e-6 * np.eye(4)
-        rhs = np.einsum("nmi,nm->ni", jac, residual)
+        # Unknowns per match: the centre's shift, the affine part's, gain a and offset b in
+        # a * I1(map(p)) + b = T(p), relinearised at a = 1, b = 0.
+        jac = np.stack([dx, dy, dx * across, dx * down, dy * across, dy * down, values, np.ones_like(values)],
+                       axis=2)                                                  # (n, m, 8)
+        normal = np.einsum("nmi,nmj->nij", jac, jac) + 1e-6 * np.eye(8)
+        rhs = np.einsum("nmi,nm->ni", jac, t - values)
         step = np.linalg.solve(normal, rhs[..., None])[..., 0]
-        current = current + np.clip(step[:, :2], -0.5, 0.5).astype(np.float32)
-    moved = np.abs(current - start).max(axis=1) > 1.0
-    current[moved] = start[moved]
-    return current.astype(np.float64)
+        centre += np.clip(step[:, :2], -0.5, 0.5)
+        affine = np.clip(affine + np.clip(step[:, 2:6], -0.05, 0.05), -0.2, 0.2)
+    moved = np.abs(centre - start).max(axis=1) > 1.0
+    centre[moved] = start[moved]
+    return centre
 
 
 def self_rectification(left: np.ndarray, samples: SampleSet, *, min_matches: int = MIN_MATCHES,
@@ -281,6 +302,80 @@ def self_rectification(left: np.ndarray, samples: SampleSet, *, min_matches: int
     return rect, report
 
 
+def frame_residual(left: np.ndarray, samples: SampleSet, rectification, *, count: int = CHECK_PATCHES) -> float:
+    """Median vertical error (raw pixels) that ``rectification`` leaves on this frame's matches.
+
+    A few hundred lattice patches are matched afresh (:func:`match_lattice`) and carried
+    through the rectification: what a stream checks its estimate with.  NaN when fewer than
+    half of :data:`MIN_MATCHES` patches match (the frame cannot tell).
+    """
+    pts1, pts2 = match_lattice(left, samples, count=count)
+    if len(pts1) < MIN_MATCHES // 2:
+        return float("nan")
+    return float(np.median(_held_residual(rectification, pts1, pts2)))
+
+
+class SelfRectifiedStream:
+    """The self-rectification of a stream of frames from one camera pair.
+
+    The first frame is estimated (:func:`self_rectification`, a few seconds) and the
+    estimate reused.  Every ``check_every`` frames (0: never) the rows are checked on
+    fresh matches (:func:`frame_residual`, a fraction of a second); when their median error
+    exceeds :data:`CHECK_GROWTH` times the estimate's own and :data:`MAX_RESIDUAL` (a camera
+    was knocked), that frame is estimated again.  A frame of another size is estimated
+    again too.  A refused first estimate raises; a refused later one keeps the previous
+    estimate (and says so in its report's ``kept``).
+
+    Attributes
+    ----------
+    rectification : Rectification or None
+    report : SelfRectificationReport or None
+    estimates : int
+        Estimates made so far.
+    """
+
+    def __init__(self, *, check_every: int = CHECK_EVERY):
+        self.check_every = int(check_every)
+        self.rectification = None
+        self.report = None
+        self.estimates = 0
+        self._size = None
+        self._frames = 0
+
+    def for_frame(self, left: np.ndarray, samples: SampleSet):
+        """The rectification for this frame and what was done for it.
+
+        Returns
+        -------
+        rectification : Rectification
+        facts : dict
+            :meth:`SelfRectificationReport.summary` of the estimate in use, plus
+            ``estimated`` (made on this frame), ``checked_residual_px`` (this frame's check,
+            or None) and ``kept`` (a new estimate was refused; the previous one is used).
+        """
+        import logging
+
+        size = (left.shape[1], left.shape[0])
+        facts = {"estimated": False, "checked_residual_px": None, "kept": None}
+        if self.rectification is None or size != self._size:
+            self.rectification, self.report = self_rectification(left, samples)
+            self._size, self.estimates, facts["estimated"] = size, self.estimates + 1, True
+        elif self.check_every > 0 and self._frames % self.check_every == 0:
+            drift = frame_residual(left, samples, self.rectification)
+            facts["checked_residual_px"] = None if np.isnan(drift) else round(drift, 3)
+            if drift > max(MAX_RESIDUAL, CHECK_GROWTH * self.report.residual_median):
+                try:
+                    self.rectification, self.report = self_rectification(left, samples)
+                    self.estimates, facts["estimated"] = self.estimates + 1, True
+                except CalibrationError as exc:
+                    facts["kept"] = exc.message
+                    logging.getLogger("stereobudget").warning(
+                        "warning: the rows drifted to %.2f px, and estimating them again was refused (%s); "
+                        "the previous estimate is kept", drift, exc.message)
+        self._frames += 1
+        return self.rectification, {**self.report.summary(), **facts}
+
+
 def _held_residual(rect, pts1, pts2):
     """|vertical error| (n,) of matches after ``rect``, in raw pixels (the rectified frame's
     pixels scaled by the raw focal length over the rectified one)."""
@@ -325,16 +420,11 @@ def _rig_jacobian(theta, pts1, pts2, w, h, residuals):
     return jac
 
 
-def _refine_rig(pts1, pts2, w, h, iterations: int = 40):
-    """A side-by-side rig fitted to the matches' rows: both cameras turned from one rectified
-    orientation (5 angles), a k1 for each lens and a shared focal length, by Levenberg-Marquardt
-    from the untouched rig, with Huber weights at 1 px and mild priors on the focal length and
-    the k1s.  Returns the Rectification and the 90th percentile over the frame of the rows'
-    standard error (raw pixels), or None."""
-    import cv2
-
-    from ._calibration import StereoCalibration
-    from ._rectify import rectify_stereo
+def _fit_rig(pts1, pts2, w, h, iterations: int = 40):
+    """The rig's parameters (8,) fitted to the matches' rows: both cameras turned from one
+    rectified orientation (5 angles), a k1 for each lens and a shared focal length, by
+    Levenberg-Marquardt from the untouched rig, with Huber weights at 1 px and mild priors on
+    the focal length and the k1s.  Returns ``(theta, residuals, priors)``."""
     n = len(pts1)
     theta = np.zeros(8)
     # Priors, one row each: the common pan (the two pans' sum; a pan apart from the other camera's
@@ -349,22 +439,76 @@ def _refine_rig(pts1, pts2, w, h, iterations: int = 40):
         return np.sum(np.minimum(r * r, 2 * np.abs(r) - 1)) + np.sum((priors @ th) ** 2)
 
     damping = 1e-3
+    res = _rig_residuals(theta, pts1, pts2, w, h)
+    for _ in range(iterations):
+        weights = 1.0 / np.maximum(1.0, np.abs(res))
+        jac = _rig_jacobian(theta, pts1, pts2, w, h, res)
+        a = np.vstack([jac * np.sqrt(weights)[:, None], priors])
+        b = np.r_[-res * np.sqrt(weights), -priors @ theta]
+        normal = a.T @ a
+        delta = np.linalg.solve(normal + damping * np.diag(np.diag(normal) + 1e-12), a.T @ b)
+        candidate = _rig_residuals(theta + delta, pts1, pts2, w, h)
+        if cost(candidate, theta + delta) < cost(res, theta):
+            theta, res, damping = theta + delta, candidate, damping * 0.3
+        else:
+            damping *= 10
+        if np.max(np.abs(delta)) < 1e-8:
+            break
+    return theta, res, priors
+
+
+def _rig_consensus(pts1, pts2, w, h, *, seed: int = 0):
+    """The matches that agree with the best of :data:`RIG_HYPOTHESES` rigs, each fitted to
+    :data:`RIG_SAMPLE` matches drawn at random (RANSAC on the rig itself).
+
+    A few per cent of the fundamental matrix's inliers are still wrong by a pixel or more
+    (repetitive leaves, a road's stripes), and a least-squares fit to all of them, even with
+    Huber weights, settles on rows that agree with the wrong ones: rows then drift by pixels
+    away from the matches.  A rig fitted to a handful of good matches is right nearly
+    everywhere, so the rig that most matches agree with (within :data:`RIG_AGREEMENT` px,
+    each scored by how closely, as MSAC does) names the good ones.  The draws are seeded:
+    one pair always gives one estimate.
+    """
+    import cv2
+
+    n = len(pts1)
+    if n <= RIG_SAMPLE:
+        return np.ones(n, bool)
+    rng = np.random.default_rng(seed)
+    best, best_score = np.ones(n, bool), -1.0
+    for _ in range(RIG_HYPOTHESES):
+        pick = rng.choice(n, RIG_SAMPLE, replace=False)
+        try:
+            theta, _, _ = _fit_rig(pts1[pick], pts2[pick], w, h, iterations=RIG_SAMPLE_ITERATIONS)
+        except (cv2.error, np.linalg.LinAlgError):
+            continue
+        residual = np.abs(_rig_residuals(theta, pts1, pts2, w, h))
+        score = float(np.sum(np.maximum(0.0, 1.0 - (residual / RIG_AGREEMENT) ** 2)))
+        if score > best_score:
+            best_score, best = score, residual < RIG_AGREEMENT
+    return best
+
+
+def _refine_rig(pts1, pts2, w, h):
+    """The rig (:func:`_fit_rig`) fitted to the matches that agree with it: the consensus of
+    :func:`_rig_consensus`, then the matches that agree with the fit to it.  Returns the
+    Rectification and the 90th percentile over the frame of the rows' standard error (raw
+    pixels), or None."""
+    import cv2
+
+    from ._calibration import StereoCalibration
+    from ._rectify import rectify_stereo
     try:
-        res = _rig_residuals(theta, pts1, pts2, w, h)
-        for _ in range(iterations):
-            weights = 1.0 / np.maximum(1.0, np.abs(res))
-            jac = _rig_jacobian(theta, pts1, pts2, w, h, res)
-            a = np.vstack([jac * np.sqrt(weights)[:, None], priors])
-            b = np.r_[-res * np.sqrt(weights), -priors @ theta]
-            normal = a.T @ a
-            delta = np.linalg.solve(normal + damping * np.diag(np.diag(normal) + 1e-12), a.T @ b)
-            candidate = _rig_residuals(theta + delta, pts1, pts2, w, h)
-            if cost(candidate, theta + delta) < cost(res, theta):
-                theta, res, damping = theta + delta, candidate, damping * 0.3
-            else:
-                damping *= 10
-            if np.max(np.abs(delta)) < 1e-8:
-                break
+        use = _rig_consensus(pts1, pts2, w, h)
+        for _ in range(2):
+            if use.sum() < RIG_SAMPLE:
+                return None
+            theta, _, _ = _fit_rig(pts1[use], pts2[use], w, h)
+            use = np.abs(_rig_residuals(theta, pts1, pts2, w, h)) < RIG_AGREEMENT
+        if use.sum() < RIG_SAMPLE:
+            return None
+        pts1, pts2 = pts1[use], pts2[use]
+        theta, res, priors = _fit_rig(pts1, pts2, w, h)
         # How far the fitted rows could be off across the frame: the parameters' covariance
         # (the matches' robust spread over the weighted normal equations) carried to a grid
         # of points over the whole frame.  Matches bunched in one textured corner pin the
@@ -391,9 +535,6 @@ def _refine_rig(pts1, pts2, w, h, iterations: int = 40):
         return None
 
 
-
-
-
 def _project_distorted(points, rotation, projection, camera, distortion):
     import cv2
 
@@ -402,4 +543,6 @@ def _project_distorted(points, rotation, projection, camera, distortion):
 
 
 
-__all__ = ["MIN_MATCHES", "MAX_RESIDUAL", "PATCH", "PATCHES", "MIN_TEXTURE", "MIN_CORRELATION", "MIN_MARGIN", "SelfRectificationReport", "match_lattice", "self_rectification"]
+__all__ = ["MIN_MATCHES", "MAX_RESIDUAL", "PATCH", "PATCHES", "MIN_TEXTURE", "MIN_CORRELATION", "MIN_MARGIN",
+           "CHECK_EVERY", "SelfRectificationReport", "SelfRectifiedStream", "match_lattice", "frame_residual",
+           "self_rectification"]
