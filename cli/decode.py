@@ -176,10 +176,12 @@ def _warm(ctx, _param, value):
 @click.option("--no-enhance", is_flag=True, default=False,
               help="--right without the correction of the warp by the samples (faster; the samples are "
                    "still written back at their pixels).")
-@click.option("--calibration", metavar="FILE", default=None,
+@click.option("--calibration", metavar="FILE|auto", default=None,
               help="Stereo calibration of the two cameras (OpenCV YAML/XML with M1 D1 M2 D2 R T, the same "
                    "in JSON, or Middlebury calib.txt): the pair is rectified at the host and decoded in the "
-                   "rectified left frame.  Needed by --depth and --points.")
+                   "rectified left frame.  Needed by --depth and --points.  'auto': the rectification is "
+                   "estimated from LEFT and the samples (grid samples; no metric scale; a stream estimates "
+                   "once and checks every 30 frames), or refused when they do not pin it down.")
 @click.option("--depth", metavar="OUT", default=None,
               help="Depth in metres along the left camera's axis, for each pixel of LEFT as given: .tif/.pfm/"
                    ".npy float32 (NaN, PFM +inf = invalid) or .png 16-bit millimetres (0 = invalid).")

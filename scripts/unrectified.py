@@ -46,11 +46,11 @@ import cv2
 import numpy as np
 
 import stereobudget
-from stereobudget.pipeline import DecodeJob, decode_file
-from stereobudget.decoding import DecoderParams, resolve_range
+from stereobudget.pipeline import DecodeJob, decode_arrays, decode_file
+from stereobudget.decoding import DecoderParams
 from stereobudget.errors import CalibrationError
-from stereobudget.geometry import (raw_right_positions, rectification_for, rectify_left, rectify_samples,
-                                   self_rectification, unrectify_pair, write_calibration)
+from stereobudget.geometry import (SelfRectifiedStream, raw_right_positions, rectification_for, rectify_left,
+                                   rectify_samples, unrectify_pair, write_calibration)
 from stereobudget.io import load_samples, read_disparity, read_image, write_image
 from stereobudget.encoding import encode_file
 from stereobudget.sampling import SamplingPattern
@@ -142,18 +142,21 @@ def run_scene(folder: Path, configs, work: Path, seed: int, variants=()) -> list
             raw_samples = load_samples(samples_raw)
             for name in variants:
                 if name == "self":
-                    # --calibration auto as sb-decode does it: the geometry from I1 and the grid
-                    # alone, then the range estimated in the frame it gives.
-                    raw_left = read_image(str(work / "raw_left.png"))[0]
+                    # --calibration auto exactly as sb-decode runs it (the range estimated in the
+                    # frame the estimate gives); the estimate is kept to score the result.
+                    rectifier = SelfRectifiedStream(check_every=0)
+                    job = DecodeJob(left=str(work / "raw_left.png"), samples=samples_raw, calibration="auto",
+                                    disparity=str(work / "da.pfm"), overwrite=True)
                     try:
-                        auto, report = self_rectification(raw_left, raw_samples)
+                        decode_arrays(read_image(job.left)[0], raw_samples, job, left_name="raw_left.png",
+                                      samples_name=samples_raw, overwrite=True, timings={},
+                                      start=time.perf_counter(), self_rectifier=rectifier)
                     except CalibrationError as exc:
                         row["self"], row["self_note"] = math.nan, str(exc).split(": ", 1)[-1][:60]
                         continue
-                    left_a, placed = rectify_left(raw_left, auto), rectify_samples(raw_samples, auto)
-                    lo_a, hi_a, _ = resolve_range(left_a, placed)
-                    result = stereobudget.decode(left_a, placed, max_disp=hi_a, min_disp=lo_a)
-                    row["self"] = bad_raw(raw_right_positions(result.disparity, auto), pair)
+                    report = rectifier.report
+                    row["self"] = bad_raw(raw_right_positions(read_disparity(work / "da.pfm"),
+                                                              rectifier.rectification), pair)
                     row["self_note"] = (f"{report.matches} matches, residual {report.residual_median:.2f} px "
                                         f"(p90 {report.residual_p90:.2f}), uncertainty {report.uncertainty:.2f} px")
                     continue

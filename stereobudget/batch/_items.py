@@ -128,12 +128,13 @@ def _decode_recipe(job: DecodeJob) -> dict:
         "max_disp": "auto" if is_auto(job.max_disp) else int(job.max_disp),
         "min_disp": job.min_disp, "params": asdict(DecoderParams()),
         "outputs": sorted(job.outputs), "disparity_format": job.disparity_format,
-        "calibration": job.calibration is not None, "frame": job.frame}
+        "calibration": "auto" if job.calibration == "auto" else job.calibration is not None, "frame": job.frame}
     if job.right is not None:
         # A change of how Î2 is made (an option, or a default of a new version) redoes it.
         from ..synthesis._recover import SynthesisParams
         options["synthesis"] = asdict(SynthesisParams(**(job.synthesis or {})))
-    return make_recipe("sb-decode", [job.left, job.samples, job.calibration], options)
+    calibration = job.calibration if job.calibration != "auto" else None   # "auto" is no file
+    return make_recipe("sb-decode", [job.left, job.samples, calibration], options)
 
 
 def decode_job(job: DecodeJob) -> dict:

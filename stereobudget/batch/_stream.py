@@ -200,7 +200,10 @@ def decode_stream(left: str, samples: str, *, disparity: str | None = None, prev
         range of every frame on its own.
     depth, points, calibration, frame
         As in :class:`~stereobudget.pipeline.DecodeJob`; the calibration is read and its
-        rectification maps computed for the first frame, then reused.
+        rectification maps computed for the first frame, then reused.  ``"auto"`` estimates
+        the rectification on the first frame and reuses it, checking it every
+        :data:`stereobudget.geometry.CHECK_EVERY` frames
+        (:class:`~stereobudget.geometry.SelfRectifiedStream`).
     temporal : bool
         Each frame searches a band of disparities around the previous frame's
         (``Decoder(temporal=True)``, :class:`stereobudget.decoding.TemporalSearch`); False:
@@ -221,6 +224,11 @@ def decode_stream(left: str, samples: str, *, disparity: str | None = None, prev
     from ..io._samples import read_samples
 
     decoder = None
+    # --calibration auto: one estimate for the stream, checked as it goes.
+    rectifier = None
+    if calibration == "auto":
+        from ..geometry._selfrect import SelfRectifiedStream
+        rectifier = SelfRectifiedStream()
     if temporal:
         from ..decoding._decoders import Decoder
         decoder = Decoder(temporal=True)
@@ -259,7 +267,7 @@ def decode_stream(left: str, samples: str, *, disparity: str | None = None, prev
                         synthesis=synthesis, calibration=calibration, frame=frame, **outputs)
         check_job_outputs(job)
         replace = prepare_outputs(list(job.outputs.values()),
-                                  [left_path, *inputs, *([calibration] if calibration else [])], overwrite=overwrite,
+                                  [left_path, *inputs, *([calibration] if calibration not in (None, "auto") else [])], overwrite=overwrite,
                                    make_dirs=True, replace_existing=False)
         t = time.perf_counter()
         left_path, left_image = lefts.read(index)
@@ -267,7 +275,8 @@ def decode_stream(left: str, samples: str, *, disparity: str | None = None, prev
         timings = {"read": time.perf_counter() - t}
         summary = decode_arrays(left_image, sample_set, job, left_name=display_name(left_path),
                                 samples_name=label, overwrite=replace, timings=timings, start=start,
-                                announce=index == 0, decoder=decoder, check_setup=not temporal or index == 0)
+                                announce=index == 0, decoder=decoder, check_setup=not temporal or index == 0,
+                                self_rectifier=rectifier)
         summary["frame"] = index
         yield summary
     unused = lefts.unused(index + 1)

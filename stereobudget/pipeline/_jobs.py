@@ -129,7 +129,9 @@ class DecodeJob:
         light to build and to send to a worker.
     calibration : str or None
         Stereo calibration file (:func:`stereobudget.geometry.read_calibration`): the pair
-        is rectified at the host and decoded in the rectified frame.
+        is rectified at the host and decoded in the rectified frame.  ``"auto"``: the
+        rectification is estimated from the pair
+        (:func:`stereobudget.geometry.self_rectification`; no metric scale).
     depth, points : str or None
         Metric outputs (need ``calibration``): depth in metres (``.tif``/``.pfm``/``.npy``
         float32, ``.png`` 16-bit millimetres) and a binary PLY point cloud.
@@ -232,7 +234,7 @@ def decode_file(job: DecodeJob, *, after_write: AfterWrite | None = None) -> dic
         raise OptionError("only one of LEFT and SAMPLES can be '-' (standard input)")
     outputs = job.outputs
     check_job_outputs(job)
-    inputs = [job.left, job.samples] + ([job.calibration] if job.calibration else [])
+    inputs = [job.left, job.samples] + ([job.calibration] if job.calibration not in (None, "auto") else [])
     overwrite = prepare_outputs(list(outputs.values()), inputs, overwrite=job.overwrite,
                                 make_dirs=job.batch)
     from ..io import _images as imageio
@@ -250,7 +252,8 @@ def decode_file(job: DecodeJob, *, after_write: AfterWrite | None = None) -> dic
 
 def decode_arrays(left, samples, job: DecodeJob, *, left_name: str, samples_name: str, overwrite: bool,
                   timings: dict, start: float, after_write: AfterWrite | None = None,
-                  announce: bool = False, decoder=None, check_setup: bool = True) -> dict:
+                  announce: bool = False, decoder=None, check_setup: bool = True,
+                  self_rectifier=None) -> dict:
     """The part of :func:`decode_file` after reading: decode ``left`` + ``samples``, write ``job``'s outputs.
 
     The outputs have been checked (``overwrite`` is the flag to write them with);
@@ -259,8 +262,10 @@ def decode_arrays(left, samples, job: DecodeJob, *, left_name: str, samples_name
     may compile for minutes.  ``decoder``: the :class:`~stereobudget.decoding.Decoder` to
     decode with (a stream's temporal one; default the process's shared one).
     ``check_setup=False`` with a given ``max_disp`` skips the range estimate, which then only
-    serves the swapped / not rectified warnings (a stream checks its first frame).  Returns
-    the summary of :func:`decode_file`.
+    serves the swapped / not rectified warnings (a stream checks its first frame).
+    ``self_rectifier``: with ``job.calibration == "auto"``, the
+    :class:`~stereobudget.geometry.SelfRectifiedStream` that keeps a stream's estimate
+    (default: one estimate for this pair).  Returns the summary of :func:`decode_file`.
     """
     from ..io import _images as imageio
     outputs = job.outputs
@@ -271,7 +276,7 @@ def decode_arrays(left, samples, job: DecodeJob, *, left_name: str, samples_name
 
     from ..decoding import _decoders as decoders
     from ..io import _disparity as dispio
-    from ..errors import MismatchError
+    from ..errors import CalibrationError, MismatchError
     t = time.perf_counter()
     from ..decoding import _checks as checks
     from ..decoding import _disprange as disprange
@@ -279,18 +284,25 @@ def decode_arrays(left, samples, job: DecodeJob, *, left_name: str, samples_name
     auto = disprange.is_auto(job.max_disp)
     method = job.method or DEFAULT_METHOD
     raw_left, raw_samples = left, samples
-    rectification = None
+    rectification, auto_facts = None, None
     try:
         # Sizes and types first (the estimate needs them to agree), then the range.
         decoders.check_inputs(left, samples, min_disp=0, max_disp=1)
         timings["validate"] = time.perf_counter() - t
         if job.calibration is not None:
             # Rectified at the host: I1 resampled, each sample placed where it lands
-            # (maps computed once per calibration file and image size).
+            # (maps computed once per calibration file and image size, or once per stream
+            # from the pair itself).
             from ..geometry import _rectify as rectify
             t = time.perf_counter()
-            rectification = rectify.rectification_for(job.calibration, left.shape[1], left.shape[0])
-            timings["rectify_maps"] = time.perf_counter() - t
+            if job.calibration == "auto":
+                from ..geometry._selfrect import SelfRectifiedStream
+                rectifier = self_rectifier if self_rectifier is not None else SelfRectifiedStream(check_every=0)
+                rectification, auto_facts = rectifier.for_frame(left, samples)
+                timings["self_rectify"] = time.perf_counter() - t
+            else:
+                rectification = rectify.rectification_for(job.calibration, left.shape[1], left.shape[0])
+                timings["rectify_maps"] = time.perf_counter() - t
             t = time.perf_counter()
             left = rectify.rectify_left(left, rectification)
             samples = rectify.rectify_samples(samples, rectification)
@@ -315,6 +327,10 @@ def decode_arrays(left, samples, job: DecodeJob, *, left_name: str, samples_name
         decoders.check_inputs(left, samples, min_disp=min_disp, max_disp=max_disp)
     except (MismatchError, OptionError) as exc:
         raise type(exc)(f"{exc.message} ({samples_name})", path=left_name) from None
+    except CalibrationError as exc:
+        if job.calibration != "auto":
+            raise
+        raise CalibrationError(f"--calibration auto: {exc.message} ({samples_name})", path=left_name) from None
     if auto:
         log.info("%s: disparity range %d..%d (estimated from %d matches in %.2f s)", left_name, min_disp,
                  max_disp, estimate.votes, estimate.seconds)
@@ -437,6 +453,11 @@ def decode_arrays(left, samples, job: DecodeJob, *, left_name: str, samples_name
                             "right": "rectified"}
         summary["calibration"] = {**rectification.calibration.summary(), **rectification.summary(),
                                   "samples_placed": int(samples.values.shape[0])}
+        if auto_facts is not None:
+            # Estimated from the pair: the baseline is a unit, not metres.
+            for key in ("baseline_m", "doffs_px"):
+                summary["calibration"].pop(key, None)
+            summary["calibration"]["self_rectification"] = auto_facts
         if cloud is not None:
             summary["points"] = int(len(cloud[0]))
         if depth is not None:

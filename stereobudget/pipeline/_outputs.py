@@ -64,13 +64,11 @@ def _check_output_formats(job) -> None:
                                                    ("frame", job.frame)) if value is not None]
         raise OptionError(f"{' and '.join(given)} need{'s' if len(given) == 1 else ''} --calibration (the "
                           "cameras' focal length, baseline and rotation)")
-    if job.calibration == "auto":
-        # stereobudget.geometry.self_rectification exists, but scripts/unrectified.py measured it
-        # decoding some unrectified realdev pairs 20-30 pp worse than their calibration while its
-        # residual and uncertainty stayed small: it is not offered until something tells a wrong
-        # estimate from a right one.
-        raise OptionError("--calibration auto (self-rectification) is not available: give the calibration "
-                          "file of the two cameras (see 'Your own cameras' in docs/cli.md)")
+    if job.calibration == "auto" and (job.depth is not None or job.points is not None):
+        given = " and ".join(f"--{name}" for name, value in (("depth", job.depth), ("points", job.points))
+                             if value is not None)
+        raise OptionError(f"{given} need{'s' if ' and ' not in given else ''} a calibration file: --calibration auto "
+                          "finds how the cameras are turned, not how far apart they are (no metric scale)")
     if job.frame not in (None, "raw", "rectified"):
         raise OptionError(f"--frame must be raw or rectified, not {job.frame!r}")
     for name, value in (("depth", job.depth), ("points", job.points)):

@@ -1,5 +1,5 @@
-"""Self-rectification (experimental, library only): the epipolar geometry from I1 and a grid of samples,
-or a clean refusal; sb-decode does not offer it yet."""
+"""Self-rectification (``--calibration auto``): the epipolar geometry from I1 and a grid of samples, or a
+clean refusal; a stream estimates once, checks, and estimates again when the rows drift."""
 
 from __future__ import annotations
 
@@ -8,8 +8,11 @@ import pytest
 from click.testing import CliRunner
 
 from stereobudget.cli.decode import decode_command
+import json
+
+from stereobudget.batch import decode_stream
 from stereobudget.errors import CalibrationError, OptionError
-from stereobudget.geometry import self_rectification, unrectify_pair
+from stereobudget.geometry import SelfRectifiedStream, frame_residual, self_rectification, unrectify_pair
 from stereobudget.io import save_samples, write_image
 from stereobudget.encoding import encode_image
 from stereobudget.sampling import SamplingPattern
@@ -76,8 +79,81 @@ def test_a_scene_without_reliable_matches_is_refused(tmp_path, kind):
         self_rectification(left, encode_image(right, pattern=GRID))
 
 
-def test_sb_decode_does_not_offer_auto(tmp_path):
+def knocked(scene):
+    """The same rig after the right camera was knocked half a degree about the baseline."""
+    return unrectify_pair(scene.left, scene.right, scene.disparity, rotation_left=np.radians([0.8, -1.0, 0.6]),
+                          rotation_right=np.radians([-1.1, 0.9, -0.7]), k1_left=0.06, k1_right=-0.05,
+                          mask=scene.nonocc)
+
+
+@pytest.fixture(scope="module")
+def turned_files(tmp_path_factory):
+    folder = tmp_path_factory.mktemp("turned")
+    pair = turned(make_scene("slanted", seed=1))
+    write_image(folder / "left.png", pair.left, channel_order="rgb")
+    save_samples(encode_image(pair.right, pattern=GRID), folder / "right.sbs")
+    return folder, pair
+
+
+def test_sb_decode_self_rectifies(turned_files, tmp_path):
+    folder, pair = turned_files
+    result = invoke(folder / "left.png", folder / "right.sbs", "--calibration", "auto", "--frame", "raw",
+                    "--disparity", tmp_path / "d.pfm", "--json")
+    assert result.exit_code == 0, result.stderr
+    summary = json.loads(result.stdout)
+    facts = summary["calibration"]["self_rectification"]
+    assert facts["estimated"] and facts["matches"] >= 100 and facts["residual_vertical_px_median"] < 0.3
+    # Estimated from the pair: no baseline, so no metres are claimed.
+    assert "baseline_m" not in summary["calibration"]
+    assert summary["frame"]["disparity"] == "raw"
+    assert (tmp_path / "d.pfm").exists()
+
+
+def test_sb_decode_auto_has_no_metric_outputs(turned_files, tmp_path):
+    folder, _ = turned_files
+    result = invoke(folder / "left.png", folder / "right.sbs", "--calibration", "auto", "--depth",
+                    tmp_path / "z.tif")
+    assert result.exit_code == OptionError.exit_code
+    assert "--depth needs a calibration file: --calibration auto" in result.stderr
+    assert not (tmp_path / "z.tif").exists()
+
+
+def test_sb_decode_auto_refuses_a_textureless_pair_in_one_line(tmp_path):
+    rng = np.random.default_rng(5)
+    left, right = (np.clip(128 + rng.normal(0, 2, (240, 320, 3)), 0, 255).astype(np.uint8) for _ in range(2))
+    write_image(tmp_path / "left.png", left, channel_order="rgb")
+    save_samples(encode_image(right, pattern=GRID), tmp_path / "right.sbs")
     result = invoke(tmp_path / "left.png", tmp_path / "right.sbs", "--calibration", "auto", "--disparity",
                     tmp_path / "d.pfm")
-    assert result.exit_code == OptionError.exit_code
-    assert "--calibration auto (self-rectification) is not available" in result.stderr
+    assert result.exit_code == CalibrationError.exit_code
+    assert len(result.stderr.strip().splitlines()) == 1
+    assert "--calibration auto: too few features match" in result.stderr and "right.sbs" in result.stderr
+    assert not (tmp_path / "d.pfm").exists()
+
+
+def test_a_stream_estimates_once_and_again_when_the_rows_drift():
+    scene = make_scene("slanted", seed=1)
+    steady, moved = turned(scene), knocked(scene)
+    frames = [(steady.left, encode_image(steady.right, pattern=GRID))] * 2 + \
+        [(moved.left, encode_image(moved.right, pattern=GRID))]
+    stream = SelfRectifiedStream(check_every=1)
+    facts = [stream.for_frame(left, samples)[1] for left, samples in frames]
+    assert [f["estimated"] for f in facts] == [True, False, True]
+    assert stream.estimates == 2
+    # The check on the steady frame finds the rows where the estimate left them; on the knocked
+    # frame, the old estimate leaves them pixels apart.
+    assert facts[1]["checked_residual_px"] < 0.3 and facts[2]["checked_residual_px"] > 1.0
+    rect, _ = stream.for_frame(*frames[2])
+    assert frame_residual(moved.left, frames[2][1], rect) < 0.3
+
+
+def test_a_stream_file_with_auto_reuses_its_estimate(turned_files, tmp_path):
+    folder, _ = turned_files
+    (tmp_path / "stream.sbs").write_bytes((folder / "right.sbs").read_bytes() * 2)
+    summaries = list(decode_stream(str(folder / "left.png"), str(tmp_path / "stream.sbs"),
+                                   disparity=str(tmp_path / "d{index}.pfm"), calibration="auto", max_disp=40))
+    facts = [s["calibration"]["self_rectification"] for s in summaries]
+    assert [f["estimated"] for f in facts] == [True, False]
+    assert facts[0]["matches"] == facts[1]["matches"]
+    assert "self_rectify" in summaries[1]["timings"]
+    assert (tmp_path / "d1.pfm").exists()
