@@ -20,5 +20,5 @@ __getattr__, __dir__, __all__ = attach(__name__, {
                 'write_ply'],
     '_synthetic': ['UnrectifiedPair', 'unrectify_pair', 'write_calibration'],
     '_selfrect': ['MIN_MATCHES', 'MAX_RESIDUAL', 'CHECK_EVERY', 'SelfRectificationReport', 'SelfRectifiedStream',
-                  'match_lattice', 'frame_residual', 'self_rectification'],
+                  'match_lattice', 'guided_matches', 'frame_residual', 'self_rectification'],
 })

@@ -52,6 +52,10 @@ RIG_HYPOTHESES = 60
 RIG_SAMPLE = 16
 RIG_SAMPLE_ITERATIONS = 20
 RIG_AGREEMENT = 0.6
+#: The guided pass: side of the lattice patch around each sample (in samples), and how far
+#: (full-resolution rows) from where the first estimate's decode puts it a match is searched.
+GUIDE_PATCH = 7
+GUIDE_SEARCH = 3
 #: A stream checks its estimate every this many frames, on this many patches, and estimates
 #: again when their median row error exceeds this multiple of the estimate's own.
 CHECK_EVERY = 30
@@ -61,17 +65,19 @@ CHECK_GROWTH = 2.0
 
 @dataclass(frozen=True)
 class SelfRectificationReport:
-    """What the estimate found: matches kept of those tried, and the vertical residual (px) of
-    the half of the matches the final refinement did not see."""
+    """What the estimate found: matches kept of those tried, the vertical residual (px) of the
+    half of the matches the final refinement did not see, and whether the matches came from
+    the guided pass (:func:`guided_matches`)."""
 
     matches: int
     candidates: int
     residual_median: float
     residual_p90: float
     uncertainty: float = 0.0
+    guided: bool = False
 
     def summary(self) -> dict:
-        return {"matches": self.matches, "candidates": self.candidates,
+        return {"matches": self.matches, "candidates": self.candidates, "guided": self.guided,
                 "residual_vertical_px_median": round(self.residual_median, 3),
                 "residual_vertical_px_p90": round(self.residual_p90, 3),
                 "uncertainty_vertical_px": round(self.uncertainty, 3)}
@@ -238,8 +244,119 @@ def _refine_matches(left_gray, templates, centres, sx, sy, iterations: int = 10)
     return centre
 
 
+def guided_matches(left: np.ndarray, samples: SampleSet, rectification, disparity: np.ndarray, *,
+                   patch: int = GUIDE_PATCH, search: int = GUIDE_SEARCH):
+    """Point pairs (n, 2) x (n, 2) for every textured sample, from where a decode puts its match.
+
+    ``disparity`` is a decode of the pair rectified by ``rectification`` (its left frame).
+    Each raw left pixel's match in the raw right image follows from it
+    (:func:`stereobudget.geometry.raw_right_positions`); the left pixel whose match lands
+    nearest a sample, moved by the difference, is where that sample's lattice patch starts.
+    The patch is then searched over ``search`` rows either way and a column either way
+    (normalised cross-correlation; the estimate's rows may be off by pixels where it had no
+    matches) and refined like :func:`match_lattice`'s.  A coarse grid matches few patches
+    by search over the whole frame (a textured patch must also stand out from everything
+    in a third of the width); here each sample needs only to stand out near its place,
+    so matches come from all over the frame, where the first estimate had to extrapolate.
+    """
+    import cv2
+
+    from ._rectify import raw_right_positions
+    p = samples.pattern
+    sx, sy = p.stride_x, p.stride_y
+    lattice = samples.grid_values()
+    if samples.channel_order == "bgr":
+        lattice = lattice[:, :, ::-1]
+    right_small = _gray_u8(lattice if lattice.shape[2] > 1 else lattice[:, :, 0]).astype(np.float32)
+    left_gray = _gray_u8(left).astype(np.float32)
+    rows, cols = right_small.shape
+    h, w = left_gray.shape
+    empty = np.zeros((0, 2)), np.zeros((0, 2))
+    # Each left pixel's implied match, and the lattice cell it lands in.
+    implied = raw_right_positions(disparity, rectification)
+    ly, lx = np.nonzero(np.all(np.isfinite(implied), axis=2))
+    ix, iy = implied[ly, lx, 0], implied[ly, lx, 1]
+    col = np.rint((ix - p.offset_x) / sx).astype(np.int64)
+    row = np.rint((iy - p.offset_y) / sy).astype(np.int64)
+    half = patch // 2
+    inside = (col >= half) & (col < cols - half) & (row >= half) & (row < rows - half)
+    ly, lx, ix, iy, col, row = ly[inside], lx[inside], ix[inside], iy[inside], col[inside], row[inside]
+    cx, cy = p.offset_x + col * sx, p.offset_y + row * sy
+    # Per cell, the left pixel whose match lands nearest the sample.
+    cell = row * cols + col
+    order = np.lexsort((np.hypot(ix - cx, iy - cy), cell))
+    _, first = np.unique(cell[order], return_index=True)
+    pick = order[first]
+    row, col = row[pick], col[pick]
+    start = np.stack([lx[pick] + (cx[pick] - ix[pick]), ly[pick] + (cy[pick] - iy[pick])], axis=1)
+    mean = cv2.boxFilter(right_small, -1, (patch, patch), borderType=cv2.BORDER_REFLECT)
+    sq = cv2.boxFilter(right_small * right_small, -1, (patch, patch), borderType=cv2.BORDER_REFLECT)
+    textured = np.sqrt(np.maximum(sq - mean * mean, 0))[row, col] >= MIN_TEXTURE
+    row, col, start = row[textured], col[textured], start[textured]
+    n = len(row)
+    if n == 0:
+        return empty
+    ky, kx = np.mgrid[-half:half + 1, -half:half + 1]
+    templates = right_small[row[:, None, None] + ky[None], col[:, None, None] + kx[None]]     # (n, P, P)
+    unit = templates.reshape(n, -1).astype(np.float64)
+    unit -= unit.mean(axis=1, keepdims=True)
+    unit /= np.linalg.norm(unit, axis=1, keepdims=True) + 1e-9
+    across = (kx.ravel() * sx).astype(np.float32)
+    down = (ky.ravel() * sy).astype(np.float32)
+    block = max(1, 32000 // patch)           # cv2.remap: maps of fewer than 32767 rows
+    best, shift = np.full(n, -2.0), np.zeros((n, 2))
+    for dy in range(-search, search + 1):
+        for dx in (-1, 0, 1):
+            map_x = (start[:, :1] + dx + across).astype(np.float32)
+            map_y = (start[:, 1:] + dy + down).astype(np.float32)
+            read = np.concatenate([
+                cv2.remap(left_gray, map_x[i:i + block].reshape(-1, patch), map_y[i:i + block].reshape(-1, patch),
+                          cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE).reshape(-1, patch * patch)
+                for i in range(0, n, block)]).astype(np.float64)
+            read -= read.mean(axis=1, keepdims=True)
+            read /= np.linalg.norm(read, axis=1, keepdims=True) + 1e-9
+            score = np.sum(read * unit, axis=1)
+            better = score > best
+            best[better], shift[better] = score[better], (dx, dy)
+    strong = best >= MIN_CORRELATION
+    if not strong.any():
+        return empty
+    pts_left = _refine_matches(left_gray, templates[strong].astype(np.float32), start[strong] + shift[strong], sx, sy)
+    pts_right = np.stack([p.offset_x + col[strong] * sx, p.offset_y + row[strong] * sy], axis=1).astype(np.float64)
+    seen = (pts_left[:, 0] >= 0) & (pts_left[:, 0] <= w - 1) & (pts_left[:, 1] >= 0) & (pts_left[:, 1] <= h - 1)
+    return pts_left[seen], pts_right[seen]
+
+
+def _first_decode(left, samples, rectification):
+    """The default decode of the pair rectified by ``rectification``, on its estimated range."""
+    from ..decoding._decoders import decode
+    from ..decoding._disprange import resolve_range
+    from ._rectify import rectify_left, rectify_samples
+
+    left_r, placed = rectify_left(left, rectification), rectify_samples(samples, rectification)
+    min_disp, max_disp, _ = resolve_range(left_r, placed)
+    return decode(left_r, placed, max_disp=max_disp, min_disp=min_disp).disparity
+
+
+def _fit_and_judge(pts1, pts2, w, h):
+    """The rig fitted on half of the matches and its residual on the other half, or None."""
+    fit, held = slice(0, None, 2), slice(1, None, 2)
+    found = _refine_rig(pts1[fit], pts2[fit], w, h)
+    if found is None:
+        return None
+    rect, spread = found
+    return rect, spread, _held_residual(rect, pts1[held], pts2[held])
+
+
+def _check_scale(rect):
+    shrink = rect.focal / rect.calibration.M1[0, 0]
+    if shrink < MIN_SCALE:
+        _fail(f"the estimated rectification would shrink the image {1 / shrink:.1f} times (a pose the matches do "
+              "not pin down); give a calibration file")
+
+
 def self_rectification(left: np.ndarray, samples: SampleSet, *, min_matches: int = MIN_MATCHES,
-                       max_residual: float = MAX_RESIDUAL):
+                       max_residual: float = MAX_RESIDUAL, guide: bool = True):
     """Estimate a rectification of the pair from I1 and the right camera's grid alone.
 
     Parameters
@@ -250,6 +367,9 @@ def self_rectification(left: np.ndarray, samples: SampleSet, *, min_matches: int
         A ``grid`` sample set of the right camera.
     min_matches, max_residual
         The refusal thresholds (:data:`MIN_MATCHES`, :data:`MAX_RESIDUAL`).
+    guide : bool
+        Fit the rig again to :func:`guided_matches` from a decode with the first estimate
+        (one decode more; the rows' error over the frame drops by a third at stride 5).
 
     Returns
     -------
@@ -283,19 +403,23 @@ def self_rectification(left: np.ndarray, samples: SampleSet, *, min_matches: int
     # The rig is fitted on half of the matches and judged on the other half: eight parameters
     # fit a few hundred matches' rows too easily to trust the fit's own residual.  Residuals
     # are in raw pixels, whatever the scale of the rectified frame.
-    fit, held = slice(0, None, 2), slice(1, None, 2)
-    found = _refine_rig(pts1[fit], pts2[fit], w, h)
+    found = _fit_and_judge(pts1, pts2, w, h)
     if found is None:
         _fail("no turn of the cameras fits the matches as a left/right pair; give a calibration file")
-    rect, spread = found
-    residual = _held_residual(rect, pts1[held], pts2[held])
-    shrink = rect.focal / rect.calibration.M1[0, 0]
-    if shrink < MIN_SCALE:
-        _fail(f"the estimated rectification would shrink the image {1 / shrink:.1f} times (a pose the matches do "
-              "not pin down); give a calibration file")
-    report = SelfRectificationReport(matches=int(len(pts1)), candidates=candidates,
+    rect, spread, residual = found
+    _check_scale(rect)
+    matches, guided = len(pts1), False
+    if guide:
+        # A decode with the first estimate says where every sample's match lies; matched there,
+        # the samples cover the frame, and the rig fitted to them no longer extrapolates.
+        near1, near2 = guided_matches(left, samples, rect, _first_decode(left, samples, rect))
+        found = _fit_and_judge(near1, near2, w, h) if len(near1) >= 2 * min_matches else None
+        if found is not None and found[0].focal / found[0].calibration.M1[0, 0] >= MIN_SCALE:
+            (rect, spread, residual), matches, guided = found, len(near1), True
+    report = SelfRectificationReport(matches=int(matches), candidates=candidates,
                                      residual_median=float(np.median(residual)),
-                                     residual_p90=float(np.percentile(residual, 90)), uncertainty=spread)
+                                     residual_p90=float(np.percentile(residual, 90)), uncertainty=spread,
+                                     guided=guided)
     if report.residual_median > max_residual:
         _fail(f"the estimated rectification leaves a median vertical error of {report.residual_median:.2f} px "
               f"(over {report.matches} matches; at most {max_residual} accepted); give a calibration file")
@@ -544,5 +668,5 @@ def _project_distorted(points, rotation, projection, camera, distortion):
 
 
 __all__ = ["MIN_MATCHES", "MAX_RESIDUAL", "PATCH", "PATCHES", "MIN_TEXTURE", "MIN_CORRELATION", "MIN_MARGIN",
-           "CHECK_EVERY", "SelfRectificationReport", "SelfRectifiedStream", "match_lattice", "frame_residual",
-           "self_rectification"]
+           "CHECK_EVERY", "SelfRectificationReport", "SelfRectifiedStream", "match_lattice", "guided_matches",
+           "frame_residual", "self_rectification"]

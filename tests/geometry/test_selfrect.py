@@ -12,7 +12,8 @@ import json
 
 from stereobudget.batch import decode_stream
 from stereobudget.errors import CalibrationError, OptionError
-from stereobudget.geometry import SelfRectifiedStream, frame_residual, self_rectification, unrectify_pair
+from stereobudget.geometry import (SelfRectifiedStream, frame_residual, guided_matches, rectify_stereo,
+                                   self_rectification, unrectify_pair)
 from stereobudget.io import save_samples, write_image
 from stereobudget.encoding import encode_image
 from stereobudget.sampling import SamplingPattern
@@ -54,6 +55,35 @@ def test_a_turned_pair_is_rectified_from_the_samples():
                                  min_disp=min(0, int(disparity.min()) - 4), max_disp=int(disparity.max()) + 4)
     error = np.hypot(*(raw_right_positions(result.disparity, rect) - pair.true_right).transpose(2, 0, 1))
     assert np.mean(~(error[pair.scored] <= 1.0)) < 0.03
+
+
+def test_guided_matches_cover_the_frame_on_the_true_rows():
+    """A decode with the first estimate places every sample's match; matched there, the samples
+    cover the frame (not only where a patch stands out from a third of the width) and sit on
+    the rows the true geometry gives them."""
+    import cv2
+
+    import stereobudget
+    from stereobudget.geometry import rectify_left, rectify_samples
+
+    scene = make_scene("slanted", seed=1)
+    pair = turned(scene)
+    samples = encode_image(pair.right, pattern=GRID)
+    first, report = self_rectification(pair.left, samples, guide=False)
+    assert not report.guided
+    disparity = stereobudget.decode(rectify_left(pair.left, first), rectify_samples(samples, first),
+                                    min_disp=-4, max_disp=48).disparity
+    left_points, right_points = guided_matches(pair.left, samples, first, disparity)
+    h, w = pair.left.shape[:2]
+    assert len(left_points) > 1000
+    assert np.ptp(right_points[:, 0]) > 0.8 * w and np.ptp(right_points[:, 1]) > 0.7 * h
+    truth = rectify_stereo(pair.calibration, w, h)
+    c = truth.calibration
+    a = cv2.undistortPoints(left_points.reshape(-1, 1, 2), c.M1, c.D1, R=truth.R1, P=truth.P1).reshape(-1, 2)
+    b = cv2.undistortPoints(right_points.reshape(-1, 1, 2), c.M2, c.D2, R=truth.R2, P=truth.P2).reshape(-1, 2)
+    assert np.median(np.abs(a[:, 1] - b[:, 1])) < 0.2
+    _, guided = self_rectification(pair.left, samples)
+    assert guided.guided and guided.matches > report.matches
 
 
 def test_a_poor_estimate_is_refused_not_decoded():
