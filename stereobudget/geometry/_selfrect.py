@@ -94,6 +94,24 @@ def _gray_u8(image):
     return np.ascontiguousarray(a)
 
 
+def _gray_images(left, samples):
+    """The sample grid as a small gray image (rows, cols) and I1 in gray, both float32."""
+    lattice = samples.grid_values()
+    if samples.channel_order == "bgr":
+        lattice = lattice[:, :, ::-1]
+    right_small = _gray_u8(lattice if lattice.shape[2] > 1 else lattice[:, :, 0]).astype(np.float32)
+    return right_small, _gray_u8(left).astype(np.float32)
+
+
+def _patch_texture(image, patch):
+    """Standard deviation of ``image`` over each ``patch`` x ``patch`` window."""
+    import cv2
+
+    mean = cv2.boxFilter(image, -1, (patch, patch), borderType=cv2.BORDER_REFLECT)
+    sq = cv2.boxFilter(image * image, -1, (patch, patch), borderType=cv2.BORDER_REFLECT)
+    return np.sqrt(np.maximum(sq - mean * mean, 0))
+
+
 def _fail(message):
     raise CalibrationError(message, path="--calibration auto")
 
@@ -116,11 +134,7 @@ def match_lattice(left: np.ndarray, samples: SampleSet, *, patch: int = PATCH, c
               f"{samples.channel_order} {samples.pattern.kind} samples")
     p = samples.pattern
     sx, sy = p.stride_x, p.stride_y
-    lattice = samples.grid_values()
-    if samples.channel_order == "bgr":
-        lattice = lattice[:, :, ::-1]
-    right_small = _gray_u8(lattice if lattice.shape[2] > 1 else lattice[:, :, 0]).astype(np.float32)
-    left_gray = _gray_u8(left).astype(np.float32)
+    right_small, left_gray = _gray_images(left, samples)
     h, w = left_gray.shape
     rows, cols = right_small.shape
     half = patch // 2
@@ -130,9 +144,7 @@ def match_lattice(left: np.ndarray, samples: SampleSet, *, patch: int = PATCH, c
     # width either way, rows up to a tenth of the height.
     reach_x, reach_y = search or (max(2, w // (3 * sx)), max(2, h // (10 * sy)))
     # Textured patches, the best of each block of a 12 x 8 partition of the grid.
-    mean = cv2.boxFilter(right_small, -1, (patch, patch), borderType=cv2.BORDER_REFLECT)
-    sq = cv2.boxFilter(right_small * right_small, -1, (patch, patch), borderType=cv2.BORDER_REFLECT)
-    texture = np.sqrt(np.maximum(sq - mean * mean, 0))
+    texture = _patch_texture(right_small, patch)
     texture[:half, :] = texture[-half:, :] = 0
     texture[:, :half] = texture[:, -half:] = 0
     centres = []
@@ -264,11 +276,7 @@ def guided_matches(left: np.ndarray, samples: SampleSet, rectification, disparit
     from ._rectify import raw_right_positions
     p = samples.pattern
     sx, sy = p.stride_x, p.stride_y
-    lattice = samples.grid_values()
-    if samples.channel_order == "bgr":
-        lattice = lattice[:, :, ::-1]
-    right_small = _gray_u8(lattice if lattice.shape[2] > 1 else lattice[:, :, 0]).astype(np.float32)
-    left_gray = _gray_u8(left).astype(np.float32)
+    right_small, left_gray = _gray_images(left, samples)
     rows, cols = right_small.shape
     h, w = left_gray.shape
     empty = np.zeros((0, 2)), np.zeros((0, 2))
@@ -289,9 +297,7 @@ def guided_matches(left: np.ndarray, samples: SampleSet, rectification, disparit
     pick = order[first]
     row, col = row[pick], col[pick]
     start = np.stack([lx[pick] + (cx[pick] - ix[pick]), ly[pick] + (cy[pick] - iy[pick])], axis=1)
-    mean = cv2.boxFilter(right_small, -1, (patch, patch), borderType=cv2.BORDER_REFLECT)
-    sq = cv2.boxFilter(right_small * right_small, -1, (patch, patch), borderType=cv2.BORDER_REFLECT)
-    textured = np.sqrt(np.maximum(sq - mean * mean, 0))[row, col] >= MIN_TEXTURE
+    textured = _patch_texture(right_small, patch)[row, col] >= MIN_TEXTURE
     row, col, start = row[textured], col[textured], start[textured]
     n = len(row)
     if n == 0:
