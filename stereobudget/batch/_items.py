@@ -133,8 +133,7 @@ def _decode_recipe(job: DecodeJob) -> dict:
         # A change of how Î2 is made (an option, or a default of a new version) redoes it.
         from ..synthesis._recover import SynthesisParams
         options["synthesis"] = asdict(SynthesisParams(**(job.synthesis or {})))
-    calibration = job.calibration if job.calibration != "auto" else None   # "auto" is no file
-    return make_recipe("sb-decode", [job.left, job.samples, calibration], options)
+    return make_recipe("sb-decode", [job.left, job.samples, job.calibration_file], options)
 
 
 def decode_job(job: DecodeJob) -> dict:

@@ -267,8 +267,8 @@ def decode_stream(left: str, samples: str, *, disparity: str | None = None, prev
                         synthesis=synthesis, calibration=calibration, frame=frame, **outputs)
         check_job_outputs(job)
         replace = prepare_outputs(list(job.outputs.values()),
-                                  [left_path, *inputs, *([calibration] if calibration not in (None, "auto") else [])], overwrite=overwrite,
-                                   make_dirs=True, replace_existing=False)
+                                  [left_path, *inputs, *([job.calibration_file] if job.calibration_file else [])],
+                                  overwrite=overwrite, make_dirs=True, replace_existing=False)
         t = time.perf_counter()
         left_path, left_image = lefts.read(index)
         sample_set = read_samples(frame_bytes, source=label)

@@ -165,6 +165,11 @@ class DecodeJob:
         return display_name(self.left if self.left is not None else self.samples)
 
     @property
+    def calibration_file(self) -> str | None:
+        """The calibration file the job reads (None without one, or with ``"auto"``)."""
+        return None if self.calibration in (None, "auto") else self.calibration
+
+    @property
     def outputs(self) -> dict:
         return {k: v for k, v in (("disparity", self.disparity), ("preview", self.preview),
                                   ("right", self.right), ("depth", self.depth), ("points", self.points))
@@ -234,7 +239,7 @@ def decode_file(job: DecodeJob, *, after_write: AfterWrite | None = None) -> dic
         raise OptionError("only one of LEFT and SAMPLES can be '-' (standard input)")
     outputs = job.outputs
     check_job_outputs(job)
-    inputs = [job.left, job.samples] + ([job.calibration] if job.calibration not in (None, "auto") else [])
+    inputs = [job.left, job.samples] + ([job.calibration_file] if job.calibration_file else [])
     overwrite = prepare_outputs(list(outputs.values()), inputs, overwrite=job.overwrite,
                                 make_dirs=job.batch)
     from ..io import _images as imageio

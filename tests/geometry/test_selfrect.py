@@ -187,3 +187,20 @@ def test_a_stream_file_with_auto_reuses_its_estimate(turned_files, tmp_path):
     assert facts[0]["matches"] == facts[1]["matches"]
     assert "self_rectify" in summaries[1]["timings"]
     assert (tmp_path / "d1.pfm").exists()
+
+
+def test_a_batch_with_auto_is_up_to_date_on_its_rerun(turned_files, tmp_path):
+    """'auto' is no file: the batch's record keeps the option, and the rerun skips the pair."""
+    folder, _ = turned_files
+    (tmp_path / "L").mkdir()
+    (tmp_path / "S").mkdir()
+    (tmp_path / "L" / "a.png").write_bytes((folder / "left.png").read_bytes())
+    (tmp_path / "S" / "a.sbs").write_bytes((folder / "right.sbs").read_bytes())
+    args = ["--left-dir", tmp_path / "L", "--samples-dir", tmp_path / "S", "--calibration", "auto", "--max-disp",
+            "40", "--disparity", str(tmp_path / "D" / "{stem}.pfm"), "--json"]
+    first = invoke(*args)
+    assert first.exit_code == 0, first.stderr
+    assert json.loads(first.stdout.splitlines()[0])["status"] == "ok"
+    again = invoke(*args)
+    assert again.exit_code == 0, again.stderr
+    assert json.loads(again.stdout.splitlines()[0])["status"] == "skipped"
