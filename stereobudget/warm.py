@@ -44,6 +44,29 @@ def _tiny_pair(kind: str, pattern):
     return scene, encode_image(scene.right, pattern=pattern)
 
 
+#: Methods that also run on samples placed off the pixel grid: a pair rectified at the host
+#: (``--calibration``) sends them through the Sparse fill's general route.
+PLACED_METHODS = ("hybrid", "sparse")
+
+
+def _placed_pair(scene, samples):
+    """The tiny pair as ``--calibration`` gives it to the decoder: I1 resampled and the samples
+    placed where a slightly turned, distorting camera pair puts them."""
+    import cv2
+    import numpy as np
+
+    from .geometry._calibration import StereoCalibration
+    from .geometry._rectify import rectify_left, rectify_samples, rectify_stereo
+
+    h, w = scene.left.shape[:2]
+    camera = np.array([[float(w), 0.0, (w - 1) / 2.0], [0.0, float(w), (h - 1) / 2.0], [0.0, 0.0, 1.0]])
+    calibration = StereoCalibration(M1=camera, D1=np.array([0.05, 0.0, 0.0, 0.0, 0.0]), M2=camera.copy(),
+                                    D2=np.zeros(5), R=cv2.Rodrigues(np.radians([0.3, -0.2, 0.4]))[0],
+                                    T=np.array([-1.0, 0.0, 0.0]), image_size=(w, h), source="warm")
+    rectification = rectify_stereo(calibration, w, h)
+    return rectify_left(scene.left, rectification), rectify_samples(samples, rectification)
+
+
 def _warm_process(args, **popen):
     """``python -m stereobudget.warm ARGS`` in a process of its own.
 
@@ -55,7 +78,8 @@ def _warm_process(args, **popen):
 
 
 def warm_method(method: str, *, kinds=KINDS) -> float:
-    """Run every kernel ``sb-decode --method METHOD`` runs, on tiny pairs; returns the seconds taken."""
+    """Run every kernel ``sb-decode --method METHOD`` runs, on tiny pairs (and, for
+    :data:`PLACED_METHODS`, on the same pairs rectified at the host); returns the seconds taken."""
     from .decoding import Decoder
     from .decoding._checks import psnr_at_samples
     from .decoding._disprange import resolve_range
@@ -67,11 +91,15 @@ def warm_method(method: str, *, kinds=KINDS) -> float:
         method, SamplingPattern("grid", 5, 5))
     for kind in kinds:
         scene, samples = _tiny_pair(kind, pattern)
-        min_disp, max_disp, _ = resolve_range(scene.left, samples, max_disp=8)
-        with Decoder(keep_freed_memory=False) as decoder:
-            result = decoder.decode(scene.left, samples, max_disp=max_disp, min_disp=min_disp, method=method)
-        psnr_at_samples(scene.left, result.disparity, samples)
-        recover_right_image(scene.left, result.disparity, samples)
+        pairs = [(scene.left, samples)]
+        if method in PLACED_METHODS:
+            pairs.append(_placed_pair(scene, samples))
+        for left, given in pairs:
+            min_disp, max_disp, _ = resolve_range(left, given, max_disp=8)
+            with Decoder(keep_freed_memory=False) as decoder:
+                result = decoder.decode(left, given, max_disp=max_disp, min_disp=min_disp, method=method)
+            psnr_at_samples(left, result.disparity, given)
+            recover_right_image(left, result.disparity, given)
     return time.perf_counter() - start
 
 
