@@ -351,14 +351,12 @@ def _fit_and_judge(pts1, pts2, w, h):
     if found is None:
         return None
     rect, spread = found
-    return rect, spread, _held_residual(rect, pts1[held], pts2[held])
+    return rect, spread, _row_errors(rect, pts1[held], pts2[held])
 
 
-def _check_scale(rect):
-    shrink = rect.focal / rect.calibration.M1[0, 0]
-    if shrink < MIN_SCALE:
-        _fail(f"the estimated rectification would shrink the image {1 / shrink:.1f} times (a pose the matches do "
-              "not pin down); give a calibration file")
+def _scale(rect):
+    """The rectified frame's focal length over the raw one (below 1: the image shrinks)."""
+    return rect.focal / rect.calibration.M1[0, 0]
 
 
 def self_rectification(left: np.ndarray, samples: SampleSet, *, min_matches: int = MIN_MATCHES,
@@ -413,14 +411,16 @@ def self_rectification(left: np.ndarray, samples: SampleSet, *, min_matches: int
     if found is None:
         _fail("no turn of the cameras fits the matches as a left/right pair; give a calibration file")
     rect, spread, residual = found
-    _check_scale(rect)
+    if _scale(rect) < MIN_SCALE:
+        _fail(f"the estimated rectification would shrink the image {1 / _scale(rect):.1f} times (a pose the matches "
+              "do not pin down); give a calibration file")
     matches, guided = len(pts1), False
     if guide:
         # A decode with the first estimate says where every sample's match lies; matched there,
         # the samples cover the frame, and the rig fitted to them no longer extrapolates.
         near1, near2 = guided_matches(left, samples, rect, _first_decode(left, samples, rect))
         found = _fit_and_judge(near1, near2, w, h) if len(near1) >= 2 * min_matches else None
-        if found is not None and found[0].focal / found[0].calibration.M1[0, 0] >= MIN_SCALE:
+        if found is not None and _scale(found[0]) >= MIN_SCALE:
             (rect, spread, residual), matches, guided = found, len(near1), True
     report = SelfRectificationReport(matches=int(matches), candidates=candidates,
                                      residual_median=float(np.median(residual)),
@@ -442,7 +442,7 @@ def frame_residual(left: np.ndarray, samples: SampleSet, rectification, *, count
     pts1, pts2 = match_lattice(left, samples, count=count)
     if len(pts1) < MIN_MATCHES // 2:
         return float("nan")
-    return float(np.median(_held_residual(rectification, pts1, pts2)))
+    return float(np.median(_row_errors(rectification, pts1, pts2)))
 
 
 class SelfRectifiedStream:
@@ -506,7 +506,7 @@ class SelfRectifiedStream:
         return self.rectification, {**self.report.summary(), **facts}
 
 
-def _held_residual(rect, pts1, pts2):
+def _row_errors(rect, pts1, pts2):
     """|vertical error| (n,) of matches after ``rect``, in raw pixels (the rectified frame's
     pixels scaled by the raw focal length over the rectified one)."""
     c = rect.calibration
