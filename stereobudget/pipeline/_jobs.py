@@ -294,6 +294,15 @@ def decode_arrays(left, samples, job: DecodeJob, *, left_name: str, samples_name
         # Sizes and types first (the estimate needs them to agree), then the range.
         decoders.check_inputs(left, samples, min_disp=0, max_disp=1)
         timings["validate"] = time.perf_counter() - t
+        if announce:
+            # After an install or upgrade numba compiles for minutes: say so before the
+            # first kernel runs, which --calibration auto's estimate already runs (a batch
+            # says it once, in the command).
+            from .._kernels._first_run import announce_first_compile
+            if announce_first_compile() and method == "hybrid":
+                # The second core compiles the decode's later kernels meanwhile.
+                from ..warm import start_hybrid_tail
+                start_hybrid_tail("gray" if left.ndim == 2 else "rgb")
         if job.calibration is not None:
             # Rectified at the host: I1 resampled, each sample placed where it lands
             # (maps computed once per calibration file and image size, or once per stream
@@ -312,14 +321,6 @@ def decode_arrays(left, samples, job: DecodeJob, *, left_name: str, samples_name
             left = rectify.rectify_left(left, rectification)
             samples = rectify.rectify_samples(samples, rectification)
             timings["rectify"] = time.perf_counter() - t
-        if announce:
-            # After an install or upgrade numba compiles for minutes: say so before the
-            # first kernel runs (a batch says it once, in the command).
-            from .._kernels._first_run import announce_first_compile
-            if announce_first_compile() and method == "hybrid":
-                # The second core compiles the decode's later kernels meanwhile.
-                from ..warm import start_hybrid_tail
-                start_hybrid_tail("gray" if left.ndim == 2 else "rgb")
         t = time.perf_counter()
         if auto or check_setup:
             with compile_notice(method):    # names the method, not the range estimate
