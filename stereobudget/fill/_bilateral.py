@@ -313,6 +313,97 @@ def _splat_lattice(lattice, samples, pixels, min_disp, cost_terms, scales, grids
                                 np.empty(8, dtype=np.uint64), np.empty(8, dtype=np.int64))
 
 
+class SampleRows(NamedTuple):
+    """Samples sorted by (row, col), grouped by row: the samples of ``rows[r]`` are
+    ``[row_start[r], row_start[r + 1])``, their columns ``cols`` ascending."""
+
+    rows: np.ndarray       # int64 (R,): the distinct sample rows, ascending
+    row_start: np.ndarray  # int64 (R + 1,)
+    cols: np.ndarray       # int64 (n,)
+
+
+@njit(cache=True, error_model="numpy", **NO_REFCOUNTS)
+def _splat_sample_rows(r_lo, r_hi, cell_lo, cell_hi, sample_rows, samples, pixels, min_disp, cost_terms, scales,
+                       grid_val, grid_w, weights, offsets, band_offsets, at):
+    """:func:`_splat_sparse_dsi_split` pixel by pixel for sample rows ``[r_lo, r_hi)`` of any pattern
+    (``sample_rows``: :class:`SampleRows`), into the cells whose y index lies in ``[cell_lo, cell_hi]``.
+
+    Left pixel x of row y meets every sample of the row whose layer ``x - min_disp - col``
+    is in range, so its hat weights and cell offsets are computed once for all of them.
+    For one layer a cell still receives its samples in the order (row, col), the order of
+    the per-sample kernel over sorted samples: the result is that kernel's bit for bit.
+    ``grid_w`` holds every layer's weights (as the per-sample kernel's full-width band);
+    ``weights`` (8,) float64, ``offsets`` (8,) uint64, ``band_offsets`` (8,) int64 and ``at``
+    (C,) float32 are the caller's scratch.
+    """
+    rows, row_start, cols = sample_rows
+    guide = pixels.guide
+    inv_cs, inv_cr = scales
+    gy_n, gx_n, gz_n, num_disp = grid_val.shape
+    w = guide.shape[1]
+    subpixel = samples.offsets.shape[0] == cols.shape[0]
+    values_flat = grid_val.reshape(grid_val.size)
+    weights_flat = grid_w.reshape(grid_w.size)
+    for r in range(r_lo, r_hi):
+        y = rows[r]
+        y0, ty = _hat(y * inv_cs, gy_n)
+        c_lo = 4 * max(0, cell_lo - y0)
+        c_hi = 4 * (min(1, cell_hi - y0) + 1)
+        first, last = row_start[r], row_start[r + 1]
+        if c_lo >= c_hi or first == last:
+            continue
+        all_corners = c_lo == 0 and c_hi == 8
+        lo = first   # first sample whose layer at x is below num_disp
+        hi = first   # one past the last sample whose layer at x is >= 0
+        for x in range(max(0, cols[first] + min_disp), min(w, cols[last - 1] + min_disp + num_disp)):
+            while hi < last and cols[hi] + min_disp <= x:
+                hi += 1
+            while lo < hi and cols[lo] + min_disp + num_disp <= x:
+                lo += 1
+            if lo == hi:
+                continue
+            x0, tx = _hat(x * inv_cs, gx_n)
+            z0, tz = _hat(guide[y, x] * inv_cr, gz_n)
+            _corner_weights(ty, tx, tz, weights)
+            _corner_offsets(y0, x0, z0, gx_n, gz_n, gx_n, num_disp, offsets, band_offsets)
+            plain = left_terms(pixels, y, x, cost_terms)
+            for k in range(lo, hi):
+                i = x - min_disp - cols[k]
+                fy = samples.offsets[k, 0] if subpixel else np.float32(0.0)
+                fx = samples.offsets[k, 1] if subpixel else np.float32(0.0)
+                if fy != 0 or fx != 0:
+                    cost = sample_cost(left_terms_at(pixels, y, x, fy, fx, cost_terms, at), samples, k, cost_terms)
+                else:
+                    cost = sample_cost(plain, samples, k, cost_terms)
+                if all_corners:
+                    _splat_cost(values_flat, weights_flat, offsets, band_offsets, weights, i, cost)
+                else:
+                    for c in range(c_lo, c_hi):
+                        values_flat[offsets[c] + np.uint64(i)] += weights[c] * cost
+                        weights_flat[np.uint64(band_offsets[c] + i)] += weights[c]
+
+
+@njit(cache=True, parallel=True)
+def _splat_rows(sample_rows, samples, pixels, min_disp, cost_terms, scales, grid_val, grid_w, part_rows,
+                shared_cells):
+    """All samples (:class:`SampleRows`) into zeroed value and weight grids, the sample rows
+    cut into parts as :func:`_splat_lattice` cuts them (and for the same reason: every sum
+    keeps the order of one pass)."""
+    gy_n = grid_val.shape[0]
+    channels = pixels.image.shape[2]
+    parts = part_rows.shape[0] - 1
+    for p in prange(parts):
+        _splat_sample_rows(part_rows[p], part_rows[p + 1], shared_cells[p] + 1, gy_n, sample_rows, samples, pixels,
+                           min_disp, cost_terms, scales, grid_val, grid_w, np.empty(8, dtype=np.float64),
+                           np.empty(8, dtype=np.uint64), np.empty(8, dtype=np.int64), np.empty(channels, np.float32))
+    for p in prange(parts):
+        if shared_cells[p] >= 0:
+            _splat_sample_rows(part_rows[p], part_rows[p + 1], np.int64(0), shared_cells[p], sample_rows, samples,
+                               pixels, min_disp, cost_terms, scales, grid_val, grid_w, np.empty(8, dtype=np.float64),
+                               np.empty(8, dtype=np.uint64), np.empty(8, dtype=np.int64),
+                               np.empty(channels, np.float32))
+
+
 def _lattice_parts(sample_rows: np.ndarray, inv_cs: float, gy: int, parts: int) -> tuple:
     """Row bounds of ``parts`` contiguous parts of the sample rows for :func:`_splat_lattice`
     (fewer when parts would be too short for only neighbouring parts to share grid cells),
@@ -495,6 +586,25 @@ def _census_codes(guide, rows, cols, right_values, terms, right_codes=None):
     return codes, spaced_census(guide, spacing_x=spacing_x, spacing_y=spacing_y)
 
 
+def _splat_any_pattern(rows, cols, samples, pixels, min_disp, cost_terms, geom, grid_val, grid_w):
+    """Splat samples of any pattern into zeroed full per-layer grids: sorted by (row, col), then
+    row by row (:func:`_splat_rows`; :func:`_splat_sparse_dsi_split` is its per-sample form)."""
+    if len(rows) == 0:
+        return
+    order = np.lexsort((cols, rows))
+    if np.any(order[1:] < order[:-1]):
+        rows, cols = rows[order], cols[order]
+        subpixel = len(samples.offsets) == len(order)
+        samples = RightSamples(samples.values[order], samples.steps[order], samples.codes[order],
+                               samples.offsets[order] if subpixel else samples.offsets)
+    row_start = np.concatenate([[0], np.flatnonzero(np.diff(rows)) + 1, [len(rows)]]).astype(np.int64)
+    sample_rows = SampleRows(np.ascontiguousarray(rows[row_start[:-1]]), row_start, np.ascontiguousarray(cols))
+    part_rows, shared_cells, _ = _lattice_parts(sample_rows.rows, 1.0 / geom.cell_s, geom.shape[0],
+                                                get_num_threads())
+    _splat_rows(sample_rows, samples, pixels, min_disp, cost_terms, _grid_scales(geom), grid_val, grid_w, part_rows,
+                shared_cells)
+
+
 def sparse_dsi_grids(left: np.ndarray, guide: np.ndarray, rows: np.ndarray, cols: np.ndarray,
                      right_values: np.ndarray, *, min_disp: int, num_disp: int, scale: FillScale,
                      terms: SparseCostTerms, right_steps: np.ndarray | None = None,
@@ -529,10 +639,8 @@ def sparse_dsi_grids(left: np.ndarray, guide: np.ndarray, rows: np.ndarray, cols
                                          min_disp=int(min_disp), num_disp=int(num_disp), terms=terms)
     grid_val = zeroed_volume(geom.shape + (num_disp,))
     grid_w = zeroed_volume(geom.shape + (num_disp,))
-    _splat_sparse_dsi_split(np.asarray(rows, np.int64), np.asarray(cols, np.int64), samples,
-                            LeftPixels(left, guide, left_codes), int(min_disp), terms.kernel_terms(),
-                            _grid_scales(geom),
-                            grid_val, grid_w, get_num_threads())
+    _splat_any_pattern(np.asarray(rows, np.int64), np.asarray(cols, np.int64), samples,
+                       LeftPixels(left, guide, left_codes), int(min_disp), terms.kernel_terms(), geom, grid_val, grid_w)
     return _slice_grids(_blur_grid(grid_val, geom), _blur_base_grid(grid_w, geom), None, geom,
                         density=len(rows) / float(h * w), missing_value=terms.truncation)
 

@@ -101,6 +101,8 @@ def lowpass_interpolation(samples, *, sigma: float) -> np.ndarray:
 
     The samples (as impulses) and their mask are blurred with the same Gaussian and
     divided, so interpolation and low-pass are one operation, for any sampling pattern.
+    A grid placed in a rectified frame (:class:`stereobudget.geometry.PlacedSamples`) is
+    low-passed on its raw lattice and resampled into the frame.
     Pixels with no sample within the kernel's reach (4 sigma) get 0.  A regular grid is
     blurred separably on its lattice (~8x faster than blurring the impulse image; the
     same taps, sums in another order).
@@ -116,6 +118,13 @@ def lowpass_interpolation(samples, *, sigma: float) -> np.ndarray:
     ndarray, float32 (H, W, C), 8-bit units
     """
     import cv2
+    placed = getattr(samples, "lattice", None)
+    if placed is not None and placed.right_map is not None:
+        # A grid rectified at the host: low-passed on its raw lattice, where it is a grid,
+        # and read into this frame (0 outside the raw image, like any unreached pixel).
+        raw = lowpass_interpolation(placed.raw, sigma=sigma)
+        dense = cv2.remap(raw, *placed.right_map, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=0)
+        return dense.reshape(samples.height, samples.width, raw.shape[2])
     values = _sample_values_f32(samples)
     if getattr(samples, "mosaic", None):
         return _per_channel_interpolation(samples, values, sigma=sigma)

@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import functools
 import os
+import weakref
 from dataclasses import dataclass
 
 import numpy as np
@@ -75,6 +76,16 @@ class Rectification:
     def doffs(self) -> float:
         """``cx2 - cx1`` of the rectified cameras (0 after a host rectification)."""
         return float(self.P2[0, 2] - self.P1[0, 2])
+
+    @functools.cached_property
+    def right_map(self) -> tuple | None:
+        """``cv2.remap`` maps from the rectified right frame to the raw right image (None when identity)."""
+        import cv2
+
+        if self.identity:
+            return None
+        c = self.calibration
+        return cv2.initUndistortRectifyMap(c.M2, c.D2, self.R2, self.P2, self.size, cv2.CV_32FC1)
 
     def summary(self) -> dict:
         """JSON-able facts for ``--json``: the frame the disparity is in, f, B, doffs."""
@@ -205,17 +216,24 @@ class SampleLattice:
         Every sample of the raw grid (RGB order), placed or not.
     spacing : (int, int)
         Median distance, in pixels of the frame, between placed row and column neighbours.
+    raw : SampleSet or None
+        The grid as the camera sent it.
+    right_map : tuple of ndarray or None
+        ``cv2.remap`` maps from this frame to the raw right image: what is computed on the
+        raw grid (its low-pass) is read into this frame through them.
     """
 
     shape: tuple
     index: np.ndarray
     values: np.ndarray
     spacing: tuple
+    raw: SampleSet | None = None
+    right_map: tuple | None = None
 
 
 @dataclass(frozen=True, eq=False)
 class PlacedSamples(SampleSet):
-    """Samples at explicit positions (rows, cols) of a ``height x width`` frame, in transmission order.
+    """Samples at explicit positions (rows, cols) of a ``height x width`` frame.
 
     What :func:`rectify_samples` gives: the decoders read it like any irregular sample
     set (its pattern's kind is ``jitter``; its strides, the spacing the samples have in
@@ -251,12 +269,65 @@ def map_sample_positions(samples: SampleSet, rectification: Rectification) -> np
     return _undistort(points, c.M2, c.D2, rectification.R2, rectification.P2)
 
 
+@dataclass(frozen=True, eq=False)
+class _Placement:
+    """Where a sample set's raw positions land in a rectified right frame (see :func:`rectify_samples`)."""
+
+    keep: np.ndarray        # int64 (n,): the samples placed, in (row, col) order of their pixels
+    rows: np.ndarray        # int64 (n,)
+    cols: np.ndarray        # int64 (n,)
+    offsets: np.ndarray     # float32 (n, 2): (dy, dx) of each true position from its pixel
+    spacing: tuple          # (x, y) spacing the samples have in the rectified frame
+    grid_shape: tuple | None
+
+
+#: Placements of regular grids, per rectification: a stream's frames share their positions.
+_PLACEMENTS: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
+
+
+def _placement(samples: SampleSet, rectification: Rectification) -> _Placement:
+    key = (samples.pattern, samples.height, samples.width) if samples.pattern.is_regular_grid else None
+    cached = _PLACEMENTS.get(rectification, {}).get(key) if key is not None else None
+    if cached is not None:
+        return cached
+    width, height = rectification.size
+    xy = map_sample_positions(samples, rectification)
+    xr, yr = np.rint(xy[:, 0]), np.rint(xy[:, 1])
+    inside = np.isfinite(xr) & np.isfinite(yr) & (xr >= 0) & (xr < width) & (yr >= 0) & (yr < height)
+    index = np.flatnonzero(inside)
+    pixel = (yr[index] * width + xr[index]).astype(np.int64)
+    # Of several samples on one pixel keep the nearest: sort by distance, keep each pixel's
+    # first.  np.unique leaves the pixels ascending: the placed samples in (row, col) order.
+    distance = np.hypot(xy[index, 0] - xr[index], xy[index, 1] - yr[index])
+    order = np.lexsort((distance, pixel))
+    _, first = np.unique(pixel[order], return_index=True)
+    keep = index[order[first]].astype(np.int64)
+    spacing = (samples.pattern.stride_x, samples.pattern.stride_y)
+    shape = None
+    if samples.pattern.is_regular_grid:
+        from ..sampling._patterns import grid_shape
+        shape = grid_shape(samples.pattern, samples.height, samples.width)
+        grid_xy = xy.reshape(shape + (2,))
+        # The spacing the grid has where it landed (alpha 1 shrinks the frame a little).
+        dx = np.median(np.hypot(*(grid_xy[:, 1:] - grid_xy[:, :-1]).reshape(-1, 2).T)) if shape[1] > 1 else spacing[0]
+        dy = np.median(np.hypot(*(grid_xy[1:] - grid_xy[:-1]).reshape(-1, 2).T)) if shape[0] > 1 else spacing[1]
+        spacing = (max(1, int(round(dx))), max(1, int(round(dy))))
+    placement = _Placement(keep=keep, rows=yr[keep].astype(np.int64), cols=xr[keep].astype(np.int64),
+                           offsets=np.stack([xy[keep, 1] - yr[keep], xy[keep, 0] - xr[keep]], axis=1).astype(np.float32),
+                           spacing=spacing, grid_shape=shape)
+    if key is not None:
+        _PLACEMENTS.setdefault(rectification, {})[key] = placement
+    return placement
+
+
 def rectify_samples(samples: SampleSet, rectification: Rectification, *, subpixel: bool = True) -> SampleSet:
     """The right camera's samples placed in the rectified right frame.
 
     Each sample goes to the pixel nearest its true rectified position; samples landing
     outside the frame are dropped, and of two landing on one pixel the nearer one is
-    kept.  A rectified calibration returns ``samples`` itself.
+    kept.  The placed samples come in (row, col) order of their pixels.  A regular grid's
+    placement is computed once per rectification, size and pattern.  A rectified
+    calibration returns ``samples`` itself.
 
     Parameters
     ----------
@@ -278,35 +349,16 @@ def rectify_samples(samples: SampleSet, rectification: Rectification, *, subpixe
                                f"{samples.pattern.kind} samples",
                                path=rectification.calibration.source)
     width, height = rectification.size
-    xy = map_sample_positions(samples, rectification)
-    xr, yr = np.rint(xy[:, 0]), np.rint(xy[:, 1])
-    inside = np.isfinite(xr) & np.isfinite(yr) & (xr >= 0) & (xr < width) & (yr >= 0) & (yr < height)
-    index = np.flatnonzero(inside)
-    pixel = (yr[index] * width + xr[index]).astype(np.int64)
-    # Of several samples on one pixel keep the nearest: sort by distance, keep each pixel's first.
-    distance = np.hypot(xy[index, 0] - xr[index], xy[index, 1] - yr[index])
-    order = np.lexsort((distance, pixel))
-    _, first = np.unique(pixel[order], return_index=True)
-    keep = np.sort(index[order[first]])
-    spacing = (samples.pattern.stride_x, samples.pattern.stride_y)
+    placed = _placement(samples, rectification)
     lattice = None
-    if samples.pattern.is_regular_grid:
-        from ..sampling._patterns import grid_shape
-        shape = grid_shape(samples.pattern, samples.height, samples.width)
-        grid_xy = xy.reshape(shape + (2,))
-        # The spacing the grid has where it landed (alpha 1 shrinks the frame a little).
-        dx = np.median(np.hypot(*(grid_xy[:, 1:] - grid_xy[:, :-1]).reshape(-1, 2).T)) if shape[1] > 1 else spacing[0]
-        dy = np.median(np.hypot(*(grid_xy[1:] - grid_xy[:-1]).reshape(-1, 2).T)) if shape[0] > 1 else spacing[1]
-        spacing = (max(1, int(round(dx))), max(1, int(round(dy))))
-        lattice = SampleLattice(shape=shape, index=keep.astype(np.int64), values=samples.values_rgb(),
-                                spacing=spacing)
-    pattern = SamplingPattern("jitter", *spacing)
-    return PlacedSamples(height=height, width=width, channel_order=samples.channel_order, pattern=pattern,
-                         values=np.ascontiguousarray(samples.values[keep]), codec=samples.codec,
-                         value_bits=samples.value_bits, quality=samples.quality,
-                         rows=yr[keep].astype(np.int64), cols=xr[keep].astype(np.int64), lattice=lattice,
-                         offsets=np.stack([xy[keep, 1] - yr[keep], xy[keep, 0] - xr[keep]], axis=1).astype(np.float32)
-                         if subpixel else None)
+    if placed.grid_shape is not None:
+        lattice = SampleLattice(shape=placed.grid_shape, index=placed.keep, values=samples.values_rgb(),
+                                spacing=placed.spacing, raw=samples, right_map=rectification.right_map)
+    return PlacedSamples(height=height, width=width, channel_order=samples.channel_order,
+                         pattern=SamplingPattern("jitter", *placed.spacing),
+                         values=np.ascontiguousarray(samples.values[placed.keep]), codec=samples.codec,
+                         value_bits=samples.value_bits, quality=samples.quality, rows=placed.rows, cols=placed.cols,
+                         lattice=lattice, offsets=placed.offsets if subpixel else None)
 
 
 def _sample_smooth(image, positions, *, jump: float = 1.0):

@@ -1,5 +1,6 @@
 """White-box tests of stereobudget.fill._bilateral: the stride-periodic weight grids, the lattice
-splat in row parts and the three-pass grid blur, each bit-identical to the plain per-layer computation.
+splat in row parts, the splat of any pattern row by row and the three-pass grid blur, each
+bit-identical to the plain per-sample or per-layer computation.
 """
 
 import numpy as np
@@ -29,6 +30,12 @@ def _inputs(scene, pattern):
     return left, to_gray(left), rows, cols, values, samples
 
 
+def _splat_per_sample(rows, cols, samples, pixels, min_disp, cost_terms, geom, grid_val, grid_w):
+    """The general route's splat as the per-sample kernel (the samples must come sorted)."""
+    bilateral._splat_sparse_dsi_split(rows, cols, samples, pixels, min_disp, cost_terms, bilateral._grid_scales(geom),
+                                      grid_val, grid_w, 2)
+
+
 @pytest.mark.parametrize("stride, offset_x, offset_y, min_disp, num_disp, steps", [
     (5, 0, 0, 0, 25, True), (4, 3, 1, 0, 25, False), (3, 1, 2, 6, 19, True), (6, 5, 0, 2, 13, False),
     (17, 2, 0, 0, 40, False)])  # more base channels than the vector slice takes: summed, then tiled
@@ -44,6 +51,7 @@ def test_split_weights_are_bit_identical(scene, monkeypatch, stride, offset_x, o
     assert bilateral._lattice_stride(np.asarray(rows, np.int64), np.asarray(cols, np.int64), 150) == stride
     split = bilateral.filled_sparse_dsi(left, guide, rows, cols, values, **kwargs)
     monkeypatch.setattr(bilateral, "_lattice_stride", lambda *args: 0)
+    monkeypatch.setattr(bilateral, "_splat_any_pattern", _splat_per_sample)
     per_layer = bilateral.filled_sparse_dsi(left, guide, rows, cols, values, **kwargs)
     np.testing.assert_array_equal(split, per_layer)
 
@@ -67,6 +75,7 @@ def test_layers_out_of_reach_are_written_as_missing_bit_identically(scene, monke
     layer = np.arange(num_disp)
     assert np.all(split[:, layer[None, :] >= first_missing[:, None]] == np.float32(15.0))
     monkeypatch.setattr(bilateral, "_lattice_stride", lambda *args: 0)
+    monkeypatch.setattr(bilateral, "_splat_any_pattern", _splat_per_sample)
     per_layer = bilateral.filled_sparse_dsi(left, guide, rows, cols, values, **kwargs)
     np.testing.assert_array_equal(split, per_layer)
 
@@ -222,8 +231,51 @@ def test_lattice_splat_in_row_parts_is_bit_identical(scene, monkeypatch, parts):
     split = bilateral.filled_sparse_dsi(left, guide, rows, cols, values, **kwargs)
     assert chosen == [parts]
     monkeypatch.setattr(bilateral, "_lattice_stride", lambda *args: 0)
+    monkeypatch.setattr(bilateral, "_splat_any_pattern", _splat_per_sample)
     per_sample = bilateral.filled_sparse_dsi(left, guide, rows, cols, values, **kwargs)
     np.testing.assert_array_equal(split, per_sample)
+
+
+
+@pytest.mark.parametrize("parts", [1, 2, 3])
+@pytest.mark.parametrize("min_disp, subpixel", [(0, True), (-3, False), (2, True)])
+def test_any_pattern_splat_row_by_row_is_bit_identical(scene, monkeypatch, parts, min_disp, subpixel):
+    # Samples off any lattice (jittered, one pixel sampled twice, in no order, with the
+    # sub-pixel offsets of a grid placed in a rectified frame) are splatted row by row in
+    # parts; every sum must keep the per-sample kernel's order over the sorted samples.
+    left, guide, rows, cols, values, _ = _inputs(scene, SamplingPattern("jitter", 4, 4, seed=3))
+    rng = np.random.default_rng(parts)
+    rows = np.append(np.asarray(rows, np.int64), rows[40])
+    cols = np.append(np.asarray(cols, np.int64), cols[40])
+    values = np.concatenate([values, values[:1] + 9.0])
+    n = len(rows)
+    right = dict(right_steps=rng.uniform(-20, 20, n).astype(np.float32),
+                 right_codes=rng.integers(0, 255, n).astype(np.int64),
+                 right_offsets=rng.uniform(-0.5, 0.5, (n, 2)).astype(np.float32) if subpixel else None)
+    kwargs = dict(min_disp=min_disp, num_disp=17, scale=FillScale(sigma_s=6.0, sigma_r=15.0, cells_per_sigma_r=1.0),
+                  terms=SparseCostTerms(truncation=15.0, step_spacing=4, step_weight=0.4, census_weight=0.3,
+                                        census_spacing=(4, 4)))
+    shuffled = rng.permutation(n)
+    chosen = []
+    lattice_parts = bilateral._lattice_parts
+
+    def parts_of(sample_rows, inv_cs, gy, _threads):
+        bounds, shared, zeroed = lattice_parts(sample_rows, inv_cs, gy, parts)
+        chosen.append(len(bounds) - 1)
+        return bounds, shared, zeroed
+
+    monkeypatch.setattr(bilateral, "_lattice_parts", parts_of)
+    by_rows = bilateral.filled_sparse_dsi(left, guide, rows[shuffled], cols[shuffled], values[shuffled],
+                                          **{k: v[shuffled] if v is not None else None for k, v in right.items()},
+                                          **kwargs)
+    assert chosen == [parts]
+    monkeypatch.setattr(bilateral, "_splat_any_pattern", _splat_per_sample)
+    # Sorted as the fill sorts (stable: the pixel sampled twice keeps its shuffled order).
+    order = shuffled[np.lexsort((cols[shuffled], rows[shuffled]))]
+    per_sample = bilateral.filled_sparse_dsi(left, guide, rows[order], cols[order], values[order],
+                                             **{k: v[order] if v is not None else None for k, v in right.items()},
+                                             **kwargs)
+    np.testing.assert_array_equal(by_rows, per_sample)
 
 
 def test_lattice_parts_keep_shared_cells_between_neighbours():
