@@ -9,7 +9,7 @@ same box-and-triangle operator (:func:`block_lowpass`, :func:`upsample_block_mea
 from __future__ import annotations
 
 import numpy as np
-from numba import get_num_threads, njit, prange
+from numba import njit, prange
 
 from ..cost._cost import to_float_image
 from ..sampling._patterns import grid_shape
@@ -178,110 +178,17 @@ def _per_channel_interpolation(samples, values, *, sigma):
                     np.float32(0.0)).astype(np.float32)
 
 
-@njit(cache=True)
-def _reflected(position, length):
-    """The index ``cv2.BORDER_REFLECT`` (``fedcba|abcdef|fedcba``) reads for ``position``."""
-    if length == 1:
-        return 0
-    while position < 0 or position >= length:
-        position = -position - 1 if position < 0 else 2 * length - 1 - position
-    return position
-
-
-@njit(cache=True)
-def _symmetric_taps(row, flat, starts, taps):
-    """``row = sum_j taps[j] * flat[starts[j]:starts[j] + len(row)]`` for a symmetric
-    kernel, as ``taps[r] * centre + sum_t taps[r + t] * (after_t + before_t)``.
-
-    Two pairs of taps per sweep over ``row``: a sweep reads ``row`` and four runs, and
-    LLVM vectorises it (with more runs its alias checks give up on vectors).
-    """
-    radius = taps.shape[0] // 2
-    n = row.shape[0]
-    centre = flat[starts[radius]:starts[radius] + n]
-    k0 = taps[radius]
-    t = 1
-    if radius % 2 == 1:
-        a, b, k1 = flat[starts[radius + 1]:], flat[starts[radius - 1]:], taps[radius + 1]
-        for i in range(n):
-            row[i] = k0 * centre[i] + k1 * (a[i] + b[i])
-        t = 2
-    else:
-        for i in range(n):
-            row[i] = k0 * centre[i]
-    while t < radius:
-        a1, b1, k1 = flat[starts[radius + t]:], flat[starts[radius - t]:], taps[radius + t]
-        a2, b2, k2 = flat[starts[radius + t + 1]:], flat[starts[radius - t - 1]:], taps[radius + t + 1]
-        for i in range(n):
-            row[i] += k1 * (a1[i] + b1[i]) + k2 * (a2[i] + b2[i])
-        t += 2
-
-
-@njit(cache=True)
-def _row_along_x(source, radius, channels, padded, starts, taps, row):
-    """One image row (``W * C`` floats) convolved along x into ``row``, borders reflected."""
-    n = source.shape[0]
-    width = n // channels
-    padded[radius * channels:radius * channels + n] = source
-    for x in range(radius):
-        before, after = _reflected(-1 - x, width), _reflected(width + x, width)
-        for c in range(channels):
-            padded[(radius - 1 - x) * channels + c] = source[before * channels + c]
-            padded[(radius + width + x) * channels + c] = source[after * channels + c]
-    _symmetric_taps(row, padded, starts, taps)
-
-
-@njit(cache=True, parallel=True)
-def _separable_gaussian(image, taps, out, bands):
-    """``out`` = ``image`` (H, W, C) float32 convolved with the symmetric ``taps`` along x,
-    then along y, borders reflected.
-
-    The rows are cut into ``bands``, one work item each; a band convolves its image rows
-    (and ``radius`` more on either side) along x into a ring of ``2 radius + 1`` rows,
-    from which each of its output rows is summed along y while the ring is in cache
-    (through a whole intermediate image a 12 MP frame took 100 ms, here 69).
-    """
-    height, width, channels = image.shape
-    radius = taps.shape[0] // 2
-    n = width * channels
-    rows = image.reshape(height, n)
-    ring_rows = min(height, 2 * radius + 1)
-    for band in prange(bands):
-        first, stop = band * height // bands, (band + 1) * height // bands
-        ring = np.empty(ring_rows * n, np.float32)
-        padded = np.empty(n + 2 * radius * channels, np.float32)
-        x_starts = np.arange(taps.shape[0]) * channels
-        y_starts = np.empty(taps.shape[0], np.int64)
-        ready = max(0, first - radius)  # the next image row to bring into the ring
-        for y in range(first, stop):
-            while ready <= min(height - 1, y + radius):
-                slot = ready % ring_rows
-                _row_along_x(rows[ready], radius, channels, padded, x_starts, taps, ring[slot * n:(slot + 1) * n])
-                ready += 1
-            for j in range(taps.shape[0]):
-                y_starts[j] = (_reflected(y - radius + j, height) % ring_rows) * n
-            _symmetric_taps(out[y].reshape(n), ring, y_starts, taps)
-    return out
-
-
 def gaussian_lowpass(image_f32: np.ndarray, *, sigma: float) -> np.ndarray:
     """Gaussian low-pass of a float32 (H, W, C) image, the same spectrum as :func:`lowpass_interpolation`.
 
-    The taps are ``cv2.GaussianBlur``'s (:func:`gaussian_taps`) and the borders are
-    reflected as by its ``BORDER_REFLECT``; the sums agree with OpenCV's to float
-    rounding (1e-4 gray levels), and run on every thread, where OpenCV's filter runs on
-    one: Teddy at sigma 2.5 took 1.10 ms there, 0.74 here on two threads (a 12 MP frame,
-    whose rows leave the cache, 62 ms there and 69 here).
+    ``cv2.GaussianBlur`` with the taps :func:`gaussian_taps` gives and reflected borders
+    (``BORDER_REFLECT``).  A numba filter on both threads took 0.74 ms at 640 x 480 RGB
+    against OpenCV's 1.50, but compiled for 5 s on a decode's first run: not worth it.
     """
+    import cv2
     image = np.ascontiguousarray(image_f32, dtype=np.float32)
-    if image.ndim == 2:
-        return gaussian_lowpass(image[:, :, None], sigma=sigma)[:, :, 0]
-    taps = gaussian_taps(sigma)
-    # One band per thread, more (up to 4 per thread) where bands of 32 radii fit: their
-    # margins then cost at most 1/16 more x sums, and uneven threads even out.
-    threads = get_num_threads()
-    bands = min(image.shape[0], max(threads, min(4 * threads, image.shape[0] // (32 * (taps.shape[0] // 2) + 1))))
-    return _separable_gaussian(image, taps, np.empty(image.shape, np.float32), bands)
+    out = cv2.GaussianBlur(image, (0, 0), sigmaX=sigma, sigmaY=sigma, borderType=cv2.BORDER_REFLECT)
+    return out.reshape(image.shape)
 
 
 def block_lowpass(image_f32: np.ndarray, sx: int, sy: int) -> np.ndarray:
