@@ -30,6 +30,7 @@ import sys
 import click
 
 from stereobudget import __version__
+from stereobudget._kernels._stack import call_with_stack_room
 from stereobudget.io import redeliver_swallowed_interrupts
 from stereobudget.errors import EXIT_INTERRUPTED, MemoryLimitError, OutputError, StereoBudgetError
 
@@ -144,7 +145,8 @@ def make_main(command: click.Command, name: str):
         except ValueError:      # not in the main thread (embedded use): keep the default
             pass
         try:
-            return command.main(args=argv, prog_name=name, standalone_mode=False)
+            # Room on the frame stack: numba's compiler then compiles a first run at full speed.
+            return call_with_stack_room(command.main, args=argv, prog_name=name, standalone_mode=False)
         except click.ClickException as exc:
             # Usage errors on one line like every other error (click's own display takes four).
             hint = f" (see {name} --help)" if isinstance(exc, click.UsageError) else ""
