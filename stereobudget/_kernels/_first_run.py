@@ -27,10 +27,10 @@ log = logging.getLogger("stereobudget")
 #: census cost): if none of them is cached, nothing is.
 PROBE_MODULES = ("stereobudget.aggregate._tree", "stereobudget.aggregate._semiglobal", "stereobudget.cost._census")
 #: Wall time of the first Hybrid ``sb-decode`` (with the range estimate, one 8-bit RGB
-#: 640x480 pair) from an empty NUMBA_CACHE_DIR on the project's 2-core machine, idle: 30 s,
-#: with a second process compiling the decode's later kernels (``stereobudget.warm.start_hybrid_tail``;
+#: 640x480 pair) from an empty NUMBA_CACHE_DIR on the project's 2-core machine, idle: a median of
+#: 23 s, with a second process compiling the decode's later kernels (``stereobudget.warm.start_hybrid_tail``;
 #: longer on a busy machine).
-COMPILE_SECONDS = 30
+COMPILE_SECONDS = 23
 #: Wall time of each method's first decode on one core (8-bit RGB, 640x480, ``--max-disp 64``)
 #: on the project's 2-core machine, idle, one after another from an empty cache in this order (a
 #: later method reuses the kernels an earlier one compiled): see docs/performance.md.

@@ -276,3 +276,26 @@ def test_an_unrectified_real_pair_with_its_calibration(tmp_path):
     error = np.hypot(*(implied - pair.true_right).transpose(2, 0, 1))[pair.scored]
     bad_calibrated = 100.0 * np.mean(~(error <= 1.0))
     assert bad_calibrated < bad_rectified + 3.0, (bad_calibrated, bad_rectified)
+
+
+def test_a_grid_is_placed_once_per_rectification_in_row_major_order(unrectified, scene):
+    from stereobudget.fill import lowpass_interpolation
+    from stereobudget.fill._lowpass import _ValuesOf
+    from stereobudget.geometry import rectify_samples
+    folder, pair = unrectified
+    rectification = rectification_for(str(folder / "stereo.yml"), scene.left.shape[1], scene.left.shape[0])
+    first = rectify_samples(encode_image(pair.right, pattern=GRID), rectification)
+    brighter = rectify_samples(encode_image(np.clip(pair.right.astype(int) + 20, 0, 255).astype(np.uint8),
+                                            pattern=GRID), rectification)
+    # The frames of a stream share where their samples land, not their values.
+    assert brighter.rows is first.rows and brighter.offsets is first.offsets
+    assert not np.array_equal(brighter.values, first.values)
+    height, width = first.height, first.width
+    assert np.all(np.diff(first.rows * width + first.cols) > 0)       # (row, col) order, one sample a pixel
+    # The low-pass of the raw lattice read into the frame is the Gaussian interpolation of
+    # the placed samples, up to where each sample sits (within half a pixel) and the edges.
+    on_lattice = lowpass_interpolation(first, sigma=5.0)
+    scattered = lowpass_interpolation(_ValuesOf(first, first.values_rgb()), sigma=5.0)
+    inner = (slice(20, height - 20), slice(20, width - 20))
+    assert on_lattice.shape == scattered.shape == (height, width, 3)
+    assert np.median(np.abs(on_lattice[inner] - scattered[inner])) < 1.0
