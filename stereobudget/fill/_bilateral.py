@@ -182,6 +182,13 @@ def _splat_sparse_dsi_split(rows, cols, samples, pixels, min_disp, cost_terms, s
                 _splat_cost(values_flat, band_flat, offsets, band_offsets, weights, i, cost)
 
 
+@njit(cache=True, inline="always")
+def _corner_range(y0, cell_lo, cell_hi):
+    """The corners ``[c_lo, c_hi)`` (of :func:`_corner_weights`' 8) of a point in cell row ``y0`` that lie
+    in the cell rows ``[cell_lo, cell_hi]``: 4 per allowed row ``y0 + a``."""
+    return 4 * max(0, cell_lo - y0), 4 * (min(1, cell_hi - y0) + 1)
+
+
 @njit(cache=True, error_model="numpy", **NO_REFCOUNTS)
 def _splat_lattice_rows(r_lo, r_hi, cell_lo, cell_hi, lattice, samples, pixels, min_disp, cost_terms, scales,
                         grids, weights, offsets, band_offsets):
@@ -216,9 +223,7 @@ def _splat_lattice_rows(r_lo, r_hi, cell_lo, cell_hi, lattice, samples, pixels, 
     for r in range(r_lo, r_hi):
         y = sample_rows[r]
         y0, ty = _hat(y * inv_cs, gy_n)
-        # The corners a (cell y0 + a) this call may write: 4 of the 8 per allowed a.
-        c_lo = 4 * max(0, cell_lo - y0)
-        c_hi = 4 * (min(1, cell_hi - y0) + 1)
+        c_lo, c_hi = _corner_range(y0, cell_lo, cell_hi)
         if c_lo >= c_hi:
             continue
         all_corners = c_lo == 0 and c_hi == 8
@@ -347,8 +352,7 @@ def _splat_sample_rows(r_lo, r_hi, cell_lo, cell_hi, sample_rows, samples, pixel
     for r in range(r_lo, r_hi):
         y = rows[r]
         y0, ty = _hat(y * inv_cs, gy_n)
-        c_lo = 4 * max(0, cell_lo - y0)
-        c_hi = 4 * (min(1, cell_hi - y0) + 1)
+        c_lo, c_hi = _corner_range(y0, cell_lo, cell_hi)
         first, last = row_start[r], row_start[r + 1]
         if c_lo >= c_hi or first == last:
             continue

@@ -30,6 +30,20 @@ def _inputs(scene, pattern):
     return left, to_gray(left), rows, cols, values, samples
 
 
+def _force_parts(monkeypatch, parts):
+    """Have the row splats cut their sample rows into ``parts`` parts; returns the list of the counts they took."""
+    chosen = []
+    lattice_parts = bilateral._lattice_parts
+
+    def parts_of(sample_rows, inv_cs, gy, _threads):
+        bounds, shared, zeroed = lattice_parts(sample_rows, inv_cs, gy, parts)
+        chosen.append(len(bounds) - 1)
+        return bounds, shared, zeroed
+
+    monkeypatch.setattr(bilateral, "_lattice_parts", parts_of)
+    return chosen
+
+
 def _splat_per_sample(rows, cols, samples, pixels, min_disp, cost_terms, geom, grid_val, grid_w):
     """The general route's splat as the per-sample kernel (the samples must come sorted)."""
     bilateral._splat_sparse_dsi_split(rows, cols, samples, pixels, min_disp, cost_terms, bilateral._grid_scales(geom),
@@ -217,15 +231,7 @@ def test_lattice_splat_in_row_parts_is_bit_identical(scene, monkeypatch, parts):
     kwargs = dict(min_disp=1, num_disp=16, right_steps=sample_row_steps(lattice).ravel(),
                   scale=FillScale(sigma_s=2.0 * stride, sigma_r=15.0, cells_per_sigma_s=2.0, cells_per_sigma_r=1.0),
                   terms=SparseCostTerms(truncation=15.0, step_spacing=stride, step_weight=0.4))
-    chosen = []
-    lattice_parts = bilateral._lattice_parts
-
-    def parts_of(sample_rows, inv_cs, gy, _threads):
-        bounds, shared, zeroed = lattice_parts(sample_rows, inv_cs, gy, parts)
-        chosen.append(len(bounds) - 1)
-        return bounds, shared, zeroed
-
-    monkeypatch.setattr(bilateral, "_lattice_parts", parts_of)
+    chosen = _force_parts(monkeypatch, parts)
     # The lattice path zeroes its grids itself: hand it garbage to prove it.
     monkeypatch.setattr(bilateral, "empty_volume", lambda shape: np.full(shape, np.nan, np.float32))
     split = bilateral.filled_sparse_dsi(left, guide, rows, cols, values, **kwargs)
@@ -256,15 +262,7 @@ def test_any_pattern_splat_row_by_row_is_bit_identical(scene, monkeypatch, parts
                   terms=SparseCostTerms(truncation=15.0, step_spacing=4, step_weight=0.4, census_weight=0.3,
                                         census_spacing=(4, 4)))
     shuffled = rng.permutation(n)
-    chosen = []
-    lattice_parts = bilateral._lattice_parts
-
-    def parts_of(sample_rows, inv_cs, gy, _threads):
-        bounds, shared, zeroed = lattice_parts(sample_rows, inv_cs, gy, parts)
-        chosen.append(len(bounds) - 1)
-        return bounds, shared, zeroed
-
-    monkeypatch.setattr(bilateral, "_lattice_parts", parts_of)
+    chosen = _force_parts(monkeypatch, parts)
     by_rows = bilateral.filled_sparse_dsi(left, guide, rows[shuffled], cols[shuffled], values[shuffled],
                                           **{k: v[shuffled] if v is not None else None for k, v in right.items()},
                                           **kwargs)
