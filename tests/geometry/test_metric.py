@@ -280,7 +280,6 @@ def test_an_unrectified_real_pair_with_its_calibration(tmp_path):
 
 def test_a_grid_is_placed_once_per_rectification_in_row_major_order(unrectified, scene):
     from stereobudget.fill import lowpass_interpolation
-    from stereobudget.fill._lowpass import _ValuesOf
     from stereobudget.geometry import rectify_samples
     folder, pair = unrectified
     rectification = rectification_for(str(folder / "stereo.yml"), scene.left.shape[1], scene.left.shape[0])
@@ -295,7 +294,11 @@ def test_a_grid_is_placed_once_per_rectification_in_row_major_order(unrectified,
     # The low-pass of the raw lattice read into the frame is the Gaussian interpolation of
     # the placed samples, up to where each sample sits (within half a pixel) and the edges.
     on_lattice = lowpass_interpolation(first, sigma=5.0)
-    scattered = lowpass_interpolation(_ValuesOf(first, first.values_rgb()), sigma=5.0)
+    impulses = np.zeros((height, width, 4), np.float32)
+    impulses[first.rows, first.cols, :3] = first.values_rgb()
+    impulses[first.rows, first.cols, 3] = 1.0
+    blurred = cv2.GaussianBlur(impulses, (0, 0), 5.0, sigmaY=5.0, borderType=cv2.BORDER_CONSTANT)
+    scattered = blurred[..., :3] / np.maximum(blurred[..., 3:], 1e-6)
     inner = (slice(20, height - 20), slice(20, width - 20))
     assert on_lattice.shape == scattered.shape == (height, width, 3)
     assert np.median(np.abs(on_lattice[inner] - scattered[inner])) < 1.0
