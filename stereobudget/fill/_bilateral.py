@@ -4,7 +4,9 @@ splatted into a bilateral grid (``_grid.py`` blurs and slices it) and normalised
 The cost splatted at each sample is Eq. (2), evaluated by :func:`stereobudget.cost.sample_cost`
 with its terms as one record (:class:`stereobudget.cost.SparseCostTerms`): the splat kernels
 here only place it in the grid.  A full sample lattice (a regular grid) takes the lattice
-splat, whose mask channels repeat with the stride; any other pattern the general one.
+splat, whose mask channels repeat with the stride; any other pattern the row splat, with a
+weight grid per disparity.  Both are held bit for bit to the plain per-sample splat
+(:func:`_splat_sparse_dsi_split`), which no decode runs.
 """
 
 from __future__ import annotations
@@ -134,9 +136,9 @@ def _grid_scales(geom: GridGeometry) -> GridScales:
 def _splat_sparse_dsi_split(rows, cols, samples, pixels, min_disp, cost_terms, scales, grid_val, band_w, blocks):
     """Splat Eq. (2): right sample k at (row, col) meets left pixel (row, col + d) in layer d.
 
-    The weights of layer i are written only into x-cells [0, B) of ``band_w`` (B = its
-    second dimension): the regular-grid path keeps just the left-border band per layer;
-    passing a full-width ``band_w`` gives every layer its own complete weight grid.
+    The plain form of the row and lattice splats, which the tests hold them to.  The
+    weights of layer i are written only into x-cells [0, B) of ``band_w`` (B = its second
+    dimension); a full-width ``band_w`` gives every layer its own complete weight grid.
 
     The layers are cut into ``blocks`` contiguous blocks, one per thread: every block
     splats all samples into its own layers, so no two threads add into the same grid
