@@ -112,6 +112,20 @@ def _patch_texture(image, patch):
     return np.sqrt(np.maximum(sq - mean * mean, 0))
 
 
+def _read_patches(image, map_x, map_y, rows, cols):
+    """``image`` read bilinearly at ``map_x``/``map_y`` (n, rows * cols), one patch per row: float64 (n, rows * cols).
+
+    ``cv2.remap`` takes maps of fewer than 32767 rows, so the patches go a block at a time.
+    """
+    import cv2
+
+    block = max(1, 32000 // rows)
+    return np.concatenate([
+        cv2.remap(image, map_x[i:i + block].reshape(-1, cols), map_y[i:i + block].reshape(-1, cols),
+                  cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE).reshape(-1, rows * cols)
+        for i in range(0, len(map_x), block)]).astype(np.float64)
+
+
 def _fail(message):
     raise CalibrationError(message, path="--calibration auto")
 
@@ -229,19 +243,10 @@ def _refine_matches(left_gray, templates, centres, sx, sy, iterations: int = 10)
     centre = start.copy()
     affine = np.zeros((n, 4))
     t = templates.reshape(n, -1).astype(np.float64)
-    # cv2.remap takes maps of fewer than 32767 rows: the patches are read a block at a time.
-    block = max(1, 32000 // rows)
     for _ in range(iterations):
         map_x = (centre[:, :1] + (1 + affine[:, :1]) * across + affine[:, 1:2] * down).astype(np.float32)
         map_y = (centre[:, 1:] + affine[:, 2:3] * across + (1 + affine[:, 3:]) * down).astype(np.float32)
-
-        def read(image):
-            return np.concatenate([
-                cv2.remap(image, map_x[i:i + block].reshape(-1, cols), map_y[i:i + block].reshape(-1, cols),
-                          cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE).reshape(-1, rows * cols)
-                for i in range(0, n, block)]).astype(np.float64)
-
-        values, dx, dy = read(left_gray), read(gx), read(gy)
+        values, dx, dy = (_read_patches(image, map_x, map_y, rows, cols) for image in (left_gray, gx, gy))
         # Unknowns per match: the centre's shift, the affine part's, gain a and offset b in
         # a * I1(map(p)) + b = T(p), relinearised at a = 1, b = 0.
         jac = np.stack([dx, dy, dx * across, dx * down, dy * across, dy * down, values, np.ones_like(values)],
@@ -271,8 +276,6 @@ def guided_matches(left: np.ndarray, samples: SampleSet, rectification, disparit
     in a third of the width); here each sample needs only to stand out near its place,
     so matches come from all over the frame, where the first estimate had to extrapolate.
     """
-    import cv2
-
     from ._rectify import raw_right_positions
     p = samples.pattern
     sx, sy = p.stride_x, p.stride_y
@@ -309,16 +312,12 @@ def guided_matches(left: np.ndarray, samples: SampleSet, rectification, disparit
     unit /= np.linalg.norm(unit, axis=1, keepdims=True) + 1e-9
     across = (kx.ravel() * sx).astype(np.float32)
     down = (ky.ravel() * sy).astype(np.float32)
-    block = max(1, 32000 // patch)           # cv2.remap: maps of fewer than 32767 rows
     best, shift = np.full(n, -2.0), np.zeros((n, 2))
     for dy in range(-search, search + 1):
         for dx in (-1, 0, 1):
             map_x = (start[:, :1] + dx + across).astype(np.float32)
             map_y = (start[:, 1:] + dy + down).astype(np.float32)
-            read = np.concatenate([
-                cv2.remap(left_gray, map_x[i:i + block].reshape(-1, patch), map_y[i:i + block].reshape(-1, patch),
-                          cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE).reshape(-1, patch * patch)
-                for i in range(0, n, block)]).astype(np.float64)
+            read = _read_patches(left_gray, map_x, map_y, patch, patch)
             read -= read.mean(axis=1, keepdims=True)
             read /= np.linalg.norm(read, axis=1, keepdims=True) + 1e-9
             score = np.sum(read * unit, axis=1)
