@@ -20,8 +20,9 @@ from dataclasses import dataclass, field
 import cv2
 import numba
 import numpy as np
-from numba import njit, prange
+from numba import njit
 
+from .._kernels._parallel import run_parts
 from .._kernels._prefetch import prefetch_for_write
 from ..errors import ImageReadError, OptionError
 
@@ -510,7 +511,6 @@ def _sorted_pair(a, b):
     return min(a, b), max(a, b)
 
 
-@njit(cache=True, parallel=True)
 def _median3_uint16_keys(image):
     """:func:`_uint16_keys` of the 3 x 3 median of each channel of a float32 (H, W, C)
     guide (borders replicated, as cv2.medianBlur), on both threads.
@@ -526,21 +526,39 @@ def _median3_uint16_keys(image):
     """
     h, w, channels = image.shape
     keys = np.empty((h, channels, w + 2), dtype=np.uint16)
+    non_finite = np.zeros(h, dtype=np.int64)
+    run_parts(_key_rows, h, image, keys, non_finite)
+    out = np.empty((h, w, channels), dtype=np.uint16)
+    run_parts(_median3_rows, h, keys, out)
+    return out, int(non_finite.sum())
+
+
+@njit(cache=True, nogil=True)
+def _key_rows(image, keys, non_finite, first, stop):
+    """Rows ``[first, stop)`` of :func:`_median3_uint16_keys`' keys, with a replicated column at
+    both ends; ``non_finite[y]`` counts row y's values that are not finite."""
+    w, channels = image.shape[1], image.shape[2]
     scale = np.float32(257.0)
-    non_finite = 0
-    for y in prange(h):
+    for y in range(first, stop):
+        count = 0
         for c in range(channels):
             row = keys[y, c, 1:w + 1]
             for x in range(w):
                 value = image[y, x, c]
                 # v - v is 0 for a finite v and NaN otherwise: a count that vectorises.
-                non_finite += (value - value) != 0
+                count += (value - value) != 0
                 row[x] = _key_of(value, scale)
             keys[y, c, 0] = keys[y, c, 1]
             keys[y, c, w + 1] = keys[y, c, w]
-    out = np.empty((h, w, channels), dtype=np.uint16)
-    for y in prange(h):
-        median = np.empty(w, dtype=np.uint16)
+        non_finite[y] = count
+
+
+@njit(cache=True, nogil=True)
+def _median3_rows(keys, out, first, stop):
+    """Rows ``[first, stop)`` of :func:`_median3_uint16_keys`' medians of the keys."""
+    h, w, channels = out.shape
+    median = np.empty(w, dtype=np.uint16)
+    for y in range(first, stop):
         above, below = max(y - 1, 0), min(y + 1, h - 1)
         for c in range(channels):
             a0, a1, a2 = keys[above, c, 0:w], keys[above, c, 1:w + 1], keys[above, c, 2:w + 2]
@@ -570,20 +588,24 @@ def _median3_uint16_keys(image):
                 median[x] = p4
             for x in range(w):
                 out[y, x, c] = median[x]
-    return out, non_finite
 
 
-@njit(cache=True, parallel=True)
 def _uint16_keys(image):
-    """``clip(rint(image * 257), 0, 65535)`` as uint16 for a float32 (H, W, C) guide, on both threads."""
-    h, w, channels = image.shape
-    out = np.empty((h, w, channels), dtype=np.uint16)
+    """``clip(rint(image * 257), 0, 65535)`` as uint16 for a float32 (H, W, C) guide, on every thread."""
+    out = np.empty(image.shape, dtype=np.uint16)
+    run_parts(_uint16_key_rows, image.shape[0], image, out)
+    return out
+
+
+@njit(cache=True, nogil=True)
+def _uint16_key_rows(image, out, first, stop):
+    """Rows ``[first, stop)`` of :func:`_uint16_keys`."""
+    w, channels = image.shape[1], image.shape[2]
     scale = np.float32(257.0)
-    for y in prange(h):
+    for y in range(first, stop):
         for x in range(w):
             for c in range(channels):
                 out[y, x, c] = _key_of(image[y, x, c], scale)
-    return out
 
 
 @njit(cache=True, nogil=True)
@@ -610,20 +632,19 @@ def _rooted_tree(image, key_count, similarity_of_key, out, split, size):
     return reached
 
 
-@njit(cache=True, parallel=True)
+@njit(cache=True, nogil=True)
 def _rooted_tree_pair(first, first_keys, first_similarity, first_out, first_split, first_size,
-                      second, second_keys, second_similarity, second_out, second_split, second_size, reached):
-    """:func:`_rooted_tree` of two guides, one per thread of numba's pool.
+                      second, second_keys, second_similarity, second_out, second_split, second_size, reached,
+                      first_part, stop_part):
+    """Parts ``[first_part, stop_part)`` of :func:`_rooted_tree` of two guides (0: the first,
+    1: the second), one per thread (:func:`~stereobudget._kernels.run_parts`).
 
-    The pool's own worker takes the second tree: a thread started beside it would share
-    the two cores with that worker while it still spins after the previous kernel
-    (Teddy's tree stage: 28.8 ms with a Python thread, 24.3 ms with this kernel).  The
-    first guide (I1's) also gets its subtree sizes and walk split here (0.3 ms on Teddy
+    The first guide (I1's) also gets its subtree sizes and walk split here (0.3 ms on Teddy
     that the refinement walk would otherwise spend on one thread).  The second tree's
     sizes are counted by the walk of the pair (``_aggregate_pair`` in ``_tree.py``), whose second
     walk is the shorter one; here they made the tree stage 0.3 ms longer.
     """
-    for part in prange(2):
+    for part in range(first_part, stop_part):
         if part == 0:
             reached[0] = _rooted_tree(first, first_keys, first_similarity, first_out, first_split, first_size)
         else:
@@ -773,8 +794,8 @@ def build_trees(guides, *, sigma: float = 0.1 * 255, median_size: int = 3) -> li
         # The second tree's walks run unsplit, and the walk of the pair counts its subtree sizes.
         splits = [np.zeros(2, np.int64), np.zeros(0, np.int64)]
         sizes = [np.empty(outs[0][0].shape[0], np.int32), np.zeros(0, np.int32)]
-        _rooted_tree_pair(*inputs[0], outs[0], splits[0], sizes[0], *inputs[1], outs[1], splits[1], sizes[1],
-                          reached)
+        run_parts(_rooted_tree_pair, 2, *inputs[0], outs[0], splits[0], sizes[0], *inputs[1], outs[1], splits[1],
+                  sizes[1], reached, parts=2)
         trees += [_rooted_tree_result(out, int(r), image.shape, split if split.size else None,
                                       size if size.size else None)
                   for out, r, (image, _, _), split, size in zip(outs, reached, inputs, splits, sizes)]

@@ -27,17 +27,16 @@ from __future__ import annotations
 from typing import NamedTuple
 
 import numpy as np
-from numba import njit, prange
+from numba import njit
 
 from .._kernels._prefetch import prefetch_row
 from .._kernels._simd import LANES, skewed_block_copy
 from ..fill._grid import SliceGrids, slice_pixel, slice_scratch
 from ..cost._cost import dense_pixel_costs, gradient_sources, reversed_right_row
 from .._kernels._jit import NO_REFCOUNTS
+from .._kernels._parallel import run_parts
 from .._kernels._scratch import empty_volume
 
-#: Image rows per parallel work item (each item allocates its own W x D row buffer).
-_ROWS_PER_ITEM = 4
 #: Pixels ahead whose destination rows are prefetched before they are written.
 _PREFETCH_AHEAD = 8
 
@@ -174,27 +173,26 @@ def _pair_item(first_row, last_row, pair, min_disp, terms, grids, mix, left_row_
             _gather_right_rows(buffer, w, y, min_disp, right_rows, right_flat, right_row_of_pixel, starts)
 
 
-@njit(cache=True, parallel=True)
-def _pair_rows(pair, min_disp, terms, grids, mix, left_row_of_pixel, right_row_of_pixel, left_rows, right_rows):
-    """Left costs of each image row into ``left_rows``, the right view's into ``right_rows``.
+@njit(cache=True, nogil=True)
+def _pair_rows(pair, min_disp, terms, grids, mix, left_row_of_pixel, right_row_of_pixel, left_rows, right_rows,
+               first, stop):
+    """Left costs of image rows ``[first, stop)`` into ``left_rows``, the right view's into ``right_rows``.
 
     ``pair``: :class:`DensePair`, ``terms``: :class:`DenseTerms`, ``grids``: :class:`SliceGrids`
     or None, ``mix``: :class:`FillMix`.
     With grids the cost is ``grid_weight * slice + dense_weight * dense``, else the dense cost.
     ``right_rows`` with no rows skips the right view.
     """
-    h, w, channels = pair.left.shape
+    w, channels = pair.left.shape[1], pair.left.shape[2]
     num_disp = left_rows.shape[1]
     # Rows past the image that the right view's diagonals read (the clamped border column).
     border_rows = max(min_disp, 0) + num_disp + LANES if right_rows.shape[0] > 0 else 0
     span = w + num_disp - 1  # columns -(min_disp + num_disp - 1) .. w - 1 - min_disp of the right image
-    for item in prange((h + _ROWS_PER_ITEM - 1) // _ROWS_PER_ITEM):
-        den, corner_index, band_index, corner_weight = slice_scratch(num_disp)
-        _pair_item(item * _ROWS_PER_ITEM, min((item + 1) * _ROWS_PER_ITEM, h), pair, min_disp, terms, grids, mix,
-                   left_row_of_pixel, right_row_of_pixel, left_rows, right_rows,
-                   np.empty((w + border_rows, num_disp), dtype=np.float32),
-                   np.empty((channels + 1, span), dtype=np.float32), np.empty(num_disp, dtype=np.float32),
-                   den, corner_index, band_index, corner_weight, np.empty(LANES, dtype=np.int64))
+    den, corner_index, band_index, corner_weight = slice_scratch(num_disp)
+    _pair_item(first, stop, pair, min_disp, terms, grids, mix, left_row_of_pixel, right_row_of_pixel, left_rows,
+               right_rows, np.empty((w + border_rows, num_disp), dtype=np.float32),
+               np.empty((channels + 1, span), dtype=np.float32), np.empty(num_disp, dtype=np.float32),
+               den, corner_index, band_index, corner_weight, np.empty(LANES, dtype=np.int64))
 
 
 def pair_cost_rows(left: np.ndarray, right: np.ndarray, *, min_disp: int, num_disp: int, truncation: float,
@@ -245,8 +243,7 @@ def pair_cost_rows(left: np.ndarray, right: np.ndarray, *, min_disp: int, num_di
     terms = DenseTerms(np.float32(truncation), np.float32(grad_truncation), np.float32(grad_weight))
     mix = FillMix(np.ascontiguousarray(guide, np.float32) if use_grids else np.zeros((1, 1), np.float32),
                   np.float32(mix_weights[0]), np.float32(mix_weights[1]))
-    _pair_rows(DensePair(left, right, left_gray, right_gray), int(min_disp), terms, grids, mix,
-               left_layout.row_of_pixel,
-               right_layout.row_of_pixel if right_layout is not None else empty_rows,
-               left_rows, right_rows)
+    run_parts(_pair_rows, h, DensePair(left, right, left_gray, right_gray), int(min_disp), terms, grids, mix,
+              left_layout.row_of_pixel, right_layout.row_of_pixel if right_layout is not None else empty_rows,
+              left_rows, right_rows)
     return left_rows, (right_rows if right_layout is not None else None)

@@ -31,7 +31,9 @@ time; the numba kernels here are held to it by the tests.
 from __future__ import annotations
 
 import numpy as np
-from numba import njit, prange
+from numba import njit
+
+from .._kernels._parallel import run_parts
 
 #: Segment spacing (pixels), grey-level compactness and k-means rounds of the segmentation.
 DEFAULT_SEGMENT_SIZE = 12
@@ -59,10 +61,11 @@ def grid_seeds(height: int, width: int, size: int):
     return ny, nx, cy, cx
 
 
-@njit(cache=True, parallel=True)
-def _assign(gray, cg, cy, cx, ny, nx, size, inv_m2, inv_s2, labels):
-    h, w = gray.shape
-    for y in prange(h):
+@njit(cache=True, nogil=True)
+def _assign(gray, cg, cy, cx, ny, nx, size, inv_m2, inv_s2, labels, first, stop):
+    """Rows ``[first, stop)`` of ``labels``: each pixel's nearest centre among its 3 x 3 seed cells."""
+    w = gray.shape[1]
+    for y in range(first, stop):
         gy = min(y // size, ny - 1)
         for x in range(w):
             gx = min(x // size, nx - 1)
@@ -140,7 +143,7 @@ def segment_image(gray: np.ndarray, *, size: int = DEFAULT_SEGMENT_SIZE, compact
     inv_m2 = 1.0 / (compactness * compactness)
     inv_s2 = 1.0 / float(size * size)
     for it in range(max(1, iterations)):
-        _assign(gray, cg, cy, cx, ny, nx, size, inv_m2, inv_s2, labels)
+        run_parts(_assign, gray.shape[0], gray, cg, cy, cx, ny, nx, size, inv_m2, inv_s2, labels)
         if it + 1 < iterations:
             _centres(gray, labels, ny * nx, cg, cy, cx)
     return labels
@@ -201,8 +204,10 @@ def _fit_one(xs, ys, ds, scales, tolerance):
     return a, b, c - a * mx - b * my, inliers
 
 
-@njit(cache=True, parallel=True)
-def _fit_planes(disparity, confident, labels, n, scales, tolerance, planes, inliers, counts, sizes):
+@njit(cache=True)
+def _segment_pixels(disparity, confident, labels, n, sizes):
+    """Every segment's confident pixels in raster order (x, y, d, and segment k's are
+    ``[start[k], start[k + 1])``), by a counting sort; ``sizes`` += each segment's pixels."""
     h, w = disparity.shape
     # Pixels of each segment in raster order, by a counting sort.
     start = np.zeros(n + 1, np.int64)
@@ -227,7 +232,13 @@ def _fit_planes(disparity, confident, labels, n, scales, tolerance, planes, inli
                 py[j] = y
                 pd[j] = disparity[y, x]
                 fill[k] = j + 1
-    for k in prange(n):
+    return start, px, py, pd
+
+
+@njit(cache=True, nogil=True)
+def _fit_segments(start, px, py, pd, scales, tolerance, planes, inliers, counts, first, stop):
+    """Segments ``[first, stop)`` of :func:`fit_segment_planes`, from :func:`_segment_pixels`."""
+    for k in range(first, stop):
         lo = start[k]
         hi = start[k + 1]
         counts[k] = hi - lo
@@ -266,9 +277,9 @@ def fit_segment_planes(disparity, confident, labels, *, tolerance: float = DEFAU
     inliers = np.zeros(n, np.int64)
     counts = np.zeros(n, np.int64)
     sizes = np.zeros(n, np.int64)
-    _fit_planes(np.ascontiguousarray(disparity, np.float32), np.ascontiguousarray(confident, np.bool_),
-                np.ascontiguousarray(labels, np.int32), n, np.array(IRLS_SCALES), float(tolerance), planes,
-                inliers, counts, sizes)
+    pixels = _segment_pixels(np.ascontiguousarray(disparity, np.float32), np.ascontiguousarray(confident, np.bool_),
+                             np.ascontiguousarray(labels, np.int32), n, sizes)
+    run_parts(_fit_segments, n, *pixels, np.array(IRLS_SCALES), float(tolerance), planes, inliers, counts)
     return planes, inliers, counts, sizes
 
 
@@ -306,17 +317,17 @@ def _crossing_errors(field, gray, labels, lattice, oy, ox, sy, sx, err, hits):
                 j += 1.0
 
 
-@njit(cache=True, parallel=True)
+@njit(cache=True, nogil=True)
 def _propose(disparity, confident, labels, planes, accept, tolerance, lo, hi, replace_confident, anchored,
-             snap, out):
-    """Each pixel's value if its segment's plane is taken (module docstring, step 3).
+             snap, out, first, stop):
+    """Rows ``[first, stop)``: each pixel's value if its segment's plane is taken (module docstring, step 3).
 
     ``anchored``: a rejected pixel takes the plane only when the plane also explains the
     nearest confident pixel of its row on one side or the other (the pixels the row fill
     chose from), so a plane does not cross into a surface its segment only grazes.
     """
-    h, w = disparity.shape
-    for y in prange(h):
+    w = disparity.shape[1]
+    for y in range(first, stop):
         last = -1
         for x in range(w):
             k = labels[y, x]
@@ -348,10 +359,11 @@ def _propose(disparity, confident, labels, planes, accept, tolerance, lo, hi, re
             out[y, x] = p
 
 
-@njit(cache=True, parallel=True)
-def _arbitrate(disparity, proposed, labels, take, out):
-    h, w = disparity.shape
-    for y in prange(h):
+@njit(cache=True, nogil=True)
+def _arbitrate(disparity, proposed, labels, take, out, first, stop):
+    """Rows ``[first, stop)`` of ``out``: the proposed value where the pixel's segment takes its plane."""
+    w = disparity.shape[1]
+    for y in range(first, stop):
         for x in range(w):
             out[y, x] = proposed[y, x] if take[labels[y, x]] else disparity[y, x]
 
@@ -432,8 +444,8 @@ def plane_refinement(disparity: np.ndarray, confident: np.ndarray, gray: np.ndar
     labels = np.ascontiguousarray(labels, np.int32)
     proposed = np.empty_like(disparity)
     snap = snap_tolerance
-    _propose(disparity, confident, labels, planes, accept, float(tolerance), float(min_disp), float(max_disp),
-             bool(replace_confident), bool(anchored), float(snap), proposed)
+    run_parts(_propose, disparity.shape[0], disparity, confident, labels, planes, accept, float(tolerance),
+              float(min_disp), float(max_disp), bool(replace_confident), bool(anchored), float(snap), proposed)
     lattice, oy, ox, sy, sx = _lattice_gray(samples)
     out = proposed
     if lattice.shape[0] > 0:
@@ -446,7 +458,7 @@ def plane_refinement(disparity: np.ndarray, confident: np.ndarray, gray: np.ndar
         _crossing_errors(proposed, gray64, labels, lattice, oy, ox, sy, sx, err_new, hits_new)
         take = (hits_now == 0) | (hits_new == 0) | (err_new * hits_now <= err_now * hits_new)
         out = np.empty_like(disparity)
-        _arbitrate(disparity, proposed, labels, take, out)
+        run_parts(_arbitrate, disparity.shape[0], disparity, proposed, labels, take, out)
     if coarse_size:
         # Segments too weakly textured or too rejected for a plane of their own: a coarser
         # segmentation's planes, fitted to the confident pixels and those the fine planes took.

@@ -16,18 +16,18 @@ Steps (Yang, CVPR 2012, Sec. 2.3):
 from __future__ import annotations
 
 import numpy as np
-from numba import njit, prange
+from numba import njit
 
 from .._kernels import _scratch as scratch
+from .._kernels._parallel import run_parts
 from . import _mst, _tree
 from ._winner import subpixel_winner
 
 
-@njit(cache=True, parallel=True)
-def _right_disparity_from_rows(aggregated, row_of_pixel, height, width, min_disp, support, nd):
-    out = np.empty((height, width), dtype=np.float32)
-    for y in prange(height):
-        diagonal = np.empty(nd, dtype=np.float32)
+@njit(cache=True, nogil=True)
+def _right_disparity_from_rows(aggregated, row_of_pixel, width, min_disp, support, nd, out, first, stop):
+    diagonal = np.empty(nd, dtype=np.float32)
+    for y in range(first, stop):
         for xr in range(width):
             for i in range(nd):
                 x = xr + min_disp + i
@@ -37,7 +37,6 @@ def _right_disparity_from_rows(aggregated, row_of_pixel, height, width, min_disp
                     x = width - 1
                 diagonal[i] = aggregated[row_of_pixel[y * width + x], i] / support[y, x]
             out[y, xr] = subpixel_winner(diagonal, min_disp)
-    return out
 
 
 def right_disparity_from_left(aggregated, min_disp, support, *, layout=None, num_disp=None):
@@ -79,32 +78,44 @@ def right_disparity_from_left(aggregated, min_disp, support, *, layout=None, num
     else:
         rows, row_of_pixel = aggregated, layout.row_of_pixel
     layers = rows.shape[1] if num_disp is None else int(num_disp)
-    return _right_disparity_from_rows(rows, row_of_pixel, h, w, int(min_disp),
-                                      np.ascontiguousarray(support, np.float32), layers)
+    out = np.empty((h, w), dtype=np.float32)
+    run_parts(_right_disparity_from_rows, h, rows, row_of_pixel, w, int(min_disp),
+              np.ascontiguousarray(support, np.float32), layers, out)
+    return out
 
 
-@njit(cache=True, parallel=True)
 def left_right_stable(disp_left, disp_right, tolerance):
     """Boolean (H, W): left pixels whose disparity the right view confirms within ``tolerance``."""
-    h, w = disp_left.shape
-    out = np.zeros((h, w), dtype=np.bool_)
-    for y in prange(h):
+    out = np.zeros(disp_left.shape, dtype=np.bool_)
+    run_parts(_stable_rows, disp_left.shape[0], disp_left, disp_right, tolerance, out)
+    return out
+
+
+@njit(cache=True, nogil=True)
+def _stable_rows(disp_left, disp_right, tolerance, out, first, stop):
+    """Rows ``[first, stop)`` of :func:`left_right_stable`."""
+    w = disp_left.shape[1]
+    for y in range(first, stop):
         for x in range(w):
             d = disp_left[y, x]
             xr = int(np.floor(x - d + 0.5))
             if 0 <= xr < w:
                 out[y, x] = abs(d - disp_right[y, xr]) <= tolerance
-    return out
 
 
-@njit(cache=True, parallel=True)
 def _stable_levels(disp, stable, pixel_of_row):
     """Row k: the disparity of pixel ``pixel_of_row[k]`` where it is stable, else NaN."""
     out = np.empty(pixel_of_row.shape[0], dtype=np.float32)
-    for k in prange(pixel_of_row.shape[0]):
+    run_parts(_stable_levels_part, out.shape[0], disp, stable, pixel_of_row, out)
+    return out
+
+
+@njit(cache=True, nogil=True)
+def _stable_levels_part(disp, stable, pixel_of_row, out, first, stop):
+    """Rows ``[first, stop)`` of :func:`_stable_levels` into ``out``."""
+    for k in range(first, stop):
         p = pixel_of_row[k]
         out[k] = disp[p] if stable[p] else np.float32(np.nan)
-    return out
 
 
 def nonlocal_refinement(disp: np.ndarray, stable: np.ndarray, tree, *, min_disp: int, num_disp: int,
@@ -238,7 +249,6 @@ def median_filter_disparity(disparity: np.ndarray, size: int) -> np.ndarray:
     return cv2.medianBlur(np.ascontiguousarray(disparity, np.float32), int(size))
 
 
-@njit(cache=True, parallel=True)
 def fill_from_row(disparity, valid):
     """Each invalid pixel takes the disparity of the nearest valid pixel of its row.
 
@@ -256,9 +266,16 @@ def fill_from_row(disparity, valid):
     -------
     ndarray, float32 (H, W)
     """
-    h, w = disparity.shape
     out = disparity.copy()
-    for y in prange(h):
+    run_parts(_fill_rows, disparity.shape[0], disparity, valid, out)
+    return out
+
+
+@njit(cache=True, nogil=True)
+def _fill_rows(disparity, valid, out, first, stop):
+    """Rows ``[first, stop)`` of :func:`fill_from_row` into ``out`` (a copy of ``disparity``)."""
+    w = disparity.shape[1]
+    for y in range(first, stop):
         last = -1                      # the nearest valid column to the left
         x = 0
         while x < w:
@@ -275,4 +292,3 @@ def fill_from_row(disparity, valid):
                 elif nxt < w:
                     out[y, xx] = disparity[y, nxt]
             x = nxt
-    return out

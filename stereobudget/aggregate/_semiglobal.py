@@ -26,7 +26,9 @@ paths from below), so the fused route (:func:`semiglobal_disparities`) and the v
 """
 
 import numpy as np
-from numba import njit, prange
+from numba import njit
+
+from .._kernels._parallel import run_parts
 
 from ._winner import refined_winner, subpixel_winner
 
@@ -123,13 +125,15 @@ def _vertical_pass(cost, guide, direction, steps, p1, p2, edge_scale, total):
                     total[y, x, d] += cur[k, x, d]
 
 
-@njit(cache=True, parallel=True)
-def _vertical_paths(cost, guide, p1, p2, edge_scale, diagonals, down, up):
-    """Both vertical passes at once, each on its own thread and into its own sum: a pass
-    is sequential over rows, and splitting a row between threads would make every row
-    wait for the slower one (badly so on a busy machine)."""
+@njit(cache=True, nogil=True)
+def _vertical_paths(cost, guide, p1, p2, edge_scale, diagonals, down, up, first, stop):
+    """Passes ``[first, stop)`` of the two vertical ones (0: down, 1: up), each into its own sum.
+
+    Both run at once, each on its own thread: a pass is sequential over rows, and
+    splitting a row between threads would make every row wait for the slower one (badly
+    so on a busy machine)."""
     steps = np.array([0, 1, -1]) if diagonals else np.array([0])
-    for j in prange(2):
+    for j in range(first, stop):
         if j == 0:
             _vertical_pass(cost, guide, 1, steps, p1, p2, edge_scale, down)
         else:
@@ -201,35 +205,34 @@ def _row_winners(row, min_disp, y, left, right, layers, best_v, best_k):
         right[y, x] = np.float32(min_disp + best_k[x]) if best_k[x] >= 0 else np.float32(np.nan)
 
 
-#: Rows per task of the row-by-row kernels (each task allocates its buffers once).
-_ROW_BLOCK = 16
+@njit(cache=True, nogil=True)
+def _horizontal_paths_into(cost, guide, p1, p2, edge_scale, down, up, first, stop):
+    """Rows ``[first, stop)`` of ``down`` += the horizontal paths and ``up`` (the aggregated volume)."""
+    path = np.empty((2, cost.shape[2]), np.float32)
+    for y in range(first, stop):
+        _row_total(cost, guide, p1, p2, edge_scale, down, up, y, down[y], path)
 
 
-@njit(cache=True, parallel=True)
-def _horizontal_paths_into(cost, guide, p1, p2, edge_scale, down, up):
-    """``down`` += the horizontal paths and ``up``, row by row (the aggregated volume)."""
-    h, w, nd = cost.shape
-    for block in prange((h + _ROW_BLOCK - 1) // _ROW_BLOCK):
-        path = np.empty((2, nd), np.float32)
-        for y in range(block * _ROW_BLOCK, min(h, (block + 1) * _ROW_BLOCK)):
-            _row_total(cost, guide, p1, p2, edge_scale, down, up, y, down[y], path)
+@njit(cache=True, nogil=True)
+def _horizontal_paths_winners_rows(cost, guide, p1, p2, edge_scale, down, up, min_disp, left, right, first, stop):
+    """Rows ``[first, stop)`` of :func:`_horizontal_paths_winners`."""
+    w, nd = cost.shape[1], cost.shape[2]
+    path = np.empty((2, nd), np.float32)
+    row = np.empty((w, nd), np.float32)
+    layers = np.empty((nd, w), np.float32)
+    best_v = np.empty(w, np.float32)
+    best_k = np.empty(w, np.int32)
+    for y in range(first, stop):
+        _row_total(cost, guide, p1, p2, edge_scale, down, up, y, row, path)
+        _row_winners(row, min_disp, y, left, right, layers, best_v, best_k)
 
 
-@njit(cache=True, parallel=True)
 def _horizontal_paths_winners(cost, guide, p1, p2, edge_scale, down, up, min_disp):
     """The winners of every row of the aggregated volume, each row summed in a buffer."""
-    h, w, nd = cost.shape
+    h, w = cost.shape[:2]
     left = np.empty((h, w), np.float32)
     right = np.empty((h, w), np.float32)
-    for block in prange((h + _ROW_BLOCK - 1) // _ROW_BLOCK):
-        path = np.empty((2, nd), np.float32)
-        row = np.empty((w, nd), np.float32)
-        layers = np.empty((nd, w), np.float32)
-        best_v = np.empty(w, np.float32)
-        best_k = np.empty(w, np.int32)
-        for y in range(block * _ROW_BLOCK, min(h, (block + 1) * _ROW_BLOCK)):
-            _row_total(cost, guide, p1, p2, edge_scale, down, up, y, row, path)
-            _row_winners(row, min_disp, y, left, right, layers, best_v, best_k)
+    run_parts(_horizontal_paths_winners_rows, h, cost, guide, p1, p2, edge_scale, down, up, min_disp, left, right)
     return left, right
 
 
@@ -243,7 +246,7 @@ def _vertical_sums(cost, guide, p1, p2, edge_scale, paths):
     down = np.empty(cost.shape, np.float32)
     up = np.empty(cost.shape, np.float32)
     p1, p2, scale = np.float32(p1), np.float32(max(p1, p2)), np.float32(edge_scale)
-    _vertical_paths(cost, guide, p1, p2, scale, paths == 8, down, up)
+    run_parts(_vertical_paths, 2, cost, guide, p1, p2, scale, paths == 8, down, up, parts=2)
     return cost, guide, p1, p2, scale, down, up
 
 
@@ -269,7 +272,7 @@ def semiglobal_aggregate(cost: np.ndarray, guide: np.ndarray, *, p1: float, p2: 
     ndarray, float32 (H, W, D)
     """
     cost, guide, p1, p2, scale, down, up = _vertical_sums(cost, guide, p1, p2, edge_scale, paths)
-    _horizontal_paths_into(cost, guide, p1, p2, scale, down, up)
+    run_parts(_horizontal_paths_into, cost.shape[0], cost, guide, p1, p2, scale, down, up)
     return down
 
 
@@ -325,7 +328,6 @@ def semiglobal_aggregate_reference(cost, guide, *, p1, p2, edge_scale=8.0, paths
     return total
 
 
-@njit(cache=True, parallel=True)
 def semiglobal_winners(total, min_disp):
     """Left and right disparities from the aggregated cost.
 
@@ -343,10 +345,18 @@ def semiglobal_winners(total, min_disp):
     left, right : ndarray, float32 (H, W)
         Right pixels with no match in I1 are NaN.
     """
-    h, w, nd = total.shape
+    h, w = total.shape[:2]
     left = np.empty((h, w), np.float32)
     right = np.empty((h, w), np.float32)
-    for y in prange(h):
+    run_parts(_winners_rows, h, total, int(min_disp), left, right)
+    return left, right
+
+
+@njit(cache=True, nogil=True)
+def _winners_rows(total, min_disp, left, right, first, stop):
+    """Rows ``[first, stop)`` of :func:`semiglobal_winners`."""
+    w, nd = total.shape[1], total.shape[2]
+    for y in range(first, stop):
         for x in range(w):
             row = total[y, x]
             best = 0
@@ -362,4 +372,3 @@ def semiglobal_winners(total, min_disp):
                     best_v = total[y, xl, k]
                     best_r = k
             right[y, x] = np.float32(min_disp + best_r) if best_r >= 0 else np.float32(np.nan)
-    return left, right

@@ -21,10 +21,10 @@ from __future__ import annotations
 
 import numba
 import numpy as np
-from numba import njit, prange
+from numba import njit
 
 from .._kernels._jit import NO_REFCOUNTS
-from .._kernels._parallel import take
+from .._kernels._parallel import run_parts, take
 from .._kernels._prefetch import prefetch_row
 from .._kernels._simd import LANES, blend_rows_first_min
 from ._mst import MinimumSpanningTree, TreeLayout, _balanced_cut, _fill_subtree_sizes, _subtree_sizes, tree_layout
@@ -348,11 +348,12 @@ def _aggregate_serial(cost, levels, order, parent, weight, out, winners, min_dis
     _downward_cut(order, parent, weight, out, 1, node_count, cuts[:count], winners, min_disp, competing)
 
 
-@njit(cache=True, parallel=True)
+@njit(cache=True, nogil=True)
 def _aggregate_pair(first, first_order, first_parent, first_weight, first_size, second, second_order,
-                    second_parent, second_weight, second_size, counted, winners, min_disp, competing):
-    """Two independent serial walks, one per thread (numba's own: threads of another pool
-    would compete with numba's, which spin a while after each parallel kernel).
+                    second_parent, second_weight, second_size, counted, winners, min_disp, competing, first_part,
+                    stop_part):
+    """Walks ``[first_part, stop_part)`` of two independent serial walks (0: the first volume,
+    1: the second), one per thread (:func:`~stereobudget._kernels.run_parts`).
 
     The orders are layouts' rows (``0 .. N-1``).  ``*_size``: the trees' subtree sizes,
     or, where ``counted`` (bool (2,)) is False, an int32 ``(N,)`` array they are counted
@@ -360,7 +361,7 @@ def _aggregate_pair(first, first_order, first_parent, first_weight, first_size, 
     worker allocated itself would be new pages on every decode: its allocator arena
     gives freed blocks back.)
     """
-    for part in prange(2):
+    for part in range(first_part, stop_part):
         if part == 0:
             if not counted[0]:
                 _fill_subtree_sizes(first_parent, first_size)
@@ -373,7 +374,6 @@ def _aggregate_pair(first, first_order, first_parent, first_weight, first_size, 
                               min_disp, competing, second_size)
 
 
-@njit(cache=True, parallel=True)
 def _aggregate_two_threads(cost, levels, order, parent, weight, out, winners, min_disp, competing, a0,
                            subtree_size, size):
     """Both passes with the tree cut into a subtree A and the rest B, one thread each.
@@ -386,13 +386,25 @@ def _aggregate_two_threads(cost, levels, order, parent, weight, out, winners, mi
     ranges cut into pairs side by side (:func:`_side_by_side_cuts`, from ``size``: the
     subtree size at each order position, :func:`_subtree_sizes`).
     """
-    node_count, disparities = out.shape
-    a1 = a0 + subtree_size
+    node_count = out.shape[0]
     ready = np.zeros(node_count if cost is not None else 0, dtype=np.uint8)
     # The cuts of A (below its top), of B after A, and of B before A.
     cuts = np.empty((3, _MAX_CUTS, 3), dtype=np.int64)
     counts = np.zeros(3, dtype=np.int64)
-    for part in prange(2):
+    run_parts(_upward_halves, 2, cost, levels, order, parent, weight, out, min_disp, a0, subtree_size, size, ready,
+              cuts, counts, parts=2)
+    above = _carry_up(order, parent, weight, out, winners, min_disp, competing, a0)
+    run_parts(_downward_halves, 2, order, parent, weight, out, winners, min_disp, competing, a0, subtree_size,
+              cuts, counts, above, parts=2)
+
+
+@njit(cache=True, nogil=True)
+def _upward_halves(cost, levels, order, parent, weight, out, min_disp, a0, subtree_size, size, ready, cuts, counts,
+                   first, stop):
+    """Halves ``[first, stop)`` (0: A, 1: B) of :func:`_aggregate_two_threads`' upward pass."""
+    node_count = out.shape[0]
+    a1 = a0 + subtree_size
+    for part in range(first, stop):
         if part == 0:
             counts[0] = _side_by_side_cuts(size, a0 + 1, a1, cuts[0])
             _upward_cut(cost, levels, min_disp, order, parent, weight, out, ready, a0 + 1, a1, cuts[0, :counts[0]])
@@ -405,6 +417,12 @@ def _aggregate_two_threads(cost, levels, order, parent, weight, out, winners, mi
             _upward_cut(cost, levels, min_disp, order, parent, weight, out, ready, 1, a0, cuts[2, :counts[2]])
             _make_ready(cost, levels, min_disp, out, ready, order[0])
 
+
+@njit(cache=True)
+def _carry_up(order, parent, weight, out, winners, min_disp, competing, a0):
+    """Between the passes of :func:`_aggregate_two_threads`: carry A's upward sum into every
+    ancestor, then return the final aggregate of A's parent (the root's winner taken)."""
+    disparities = out.shape[1]
     # Carry A's upward sum into every ancestor, attenuated along the path.
     top = order[a0]
     total = out[top]
@@ -432,10 +450,21 @@ def _aggregate_two_threads(cost, levels, order, parent, weight, out, winners, mi
         for d in range(disparities):
             above[d] = s * above[d] + keep * row[d]
 
-    take_winners = winners.shape[0] > 0
-    if take_winners:  # the root's upward sum, now including A's, is its final aggregate
+    if winners.shape[0] > 0:  # the root's upward sum, now including A's, is its final aggregate
         winners[order[0]] = subpixel_winner(out[order[0]][:competing], min_disp)
-    for part in prange(2):
+    return above
+
+
+@njit(cache=True, nogil=True)
+def _downward_halves(order, parent, weight, out, winners, min_disp, competing, a0, subtree_size, cuts, counts, above,
+                     first, stop):
+    """Halves ``[first, stop)`` (0: A, 1: B) of :func:`_aggregate_two_threads`' downward pass."""
+    node_count, disparities = out.shape
+    a1 = a0 + subtree_size
+    top = order[a0]
+    total = out[top]
+    take_winners = winners.shape[0] > 0
+    for part in range(first, stop):
         if part == 0:
             top_similarity = weight[top]
             top_keep = np.float32(1.0) - top_similarity * top_similarity
@@ -631,10 +660,10 @@ def aggregate_two_rows_winners(first: np.ndarray, first_layout: TreeLayout, seco
                 aggregate_rows_winners(second, second_layout, min_disp=min_disp, num_disp=num_disp))
     winners = np.empty((2, node_count), dtype=np.float32)
     counted = np.array([first_layout.subtree_size is not None, second_layout.subtree_size is not None])
-    _aggregate_pair(first, first_layout.rows, first_layout.parent_row, first_layout.weight_row,
-                    _sizes_or_room(first_layout), second, second_layout.rows, second_layout.parent_row,
-                    second_layout.weight_row, _sizes_or_room(second_layout), counted, winners, int(min_disp),
-                    competing)
+    run_parts(_aggregate_pair, 2, first, first_layout.rows, first_layout.parent_row, first_layout.weight_row,
+              _sizes_or_room(first_layout), second, second_layout.rows, second_layout.parent_row,
+              second_layout.weight_row, _sizes_or_room(second_layout), counted, winners, int(min_disp), competing,
+              parts=2)
     return _in_pixel_order(winners[0], first_layout), _in_pixel_order(winners[1], second_layout)
 
 

@@ -10,8 +10,9 @@ right-view search (:func:`stereobudget.aggregate.right_disparity_from_left`).
 from __future__ import annotations
 
 import numpy as np
-from numba import njit, prange
+from numba import njit
 
+from .._kernels._parallel import run_parts
 from .._kernels._simd import first_min
 
 
@@ -41,7 +42,6 @@ def refined_winner(costs, best, min_disp):
     return min_disp + best + sub
 
 
-@njit(cache=True, parallel=True)
 def winner_take_all(cost, min_disp):
     """Per-pixel argmin over disparity with a parabola fit through the minimum and its neighbours.
 
@@ -56,7 +56,13 @@ def winner_take_all(cost, min_disp):
     """
     h, w = cost.shape[:2]
     out = np.empty((h, w), dtype=np.float32)
-    for y in prange(h):
-        for x in range(w):
-            out[y, x] = subpixel_winner(cost[y, x], min_disp)
+    run_parts(_winner_rows, h, cost, min_disp, out)
     return out
+
+
+@njit(cache=True, nogil=True)
+def _winner_rows(cost, min_disp, out, first, stop):
+    """Rows ``[first, stop)`` of :func:`winner_take_all`."""
+    for y in range(first, stop):
+        for x in range(cost.shape[1]):
+            out[y, x] = subpixel_winner(cost[y, x], min_disp)

@@ -9,7 +9,9 @@ match is the number of differing bits.
 """
 
 import numpy as np
-from numba import njit, prange
+from numba import njit
+
+from .._kernels._parallel import run_parts
 
 #: Window radius of the census transform (5 x 5 window, 24 bits).
 CENSUS_RADIUS = 2
@@ -17,11 +19,10 @@ CENSUS_RADIUS = 2
 CENSUS_BITS = (2 * CENSUS_RADIUS + 1) ** 2 - 1
 
 
-@njit(cache=True, parallel=True)
-def _census_kernel(gray, radius):
+@njit(cache=True, nogil=True)
+def _census_rows(gray, radius, out, first, stop):
     h, w = gray.shape
-    out = np.zeros((h, w), np.uint32)
-    for y in prange(h):
+    for y in range(first, stop):
         for x in range(w):
             centre = gray[y, x]
             bits = np.uint32(0)
@@ -33,7 +34,6 @@ def _census_kernel(gray, radius):
                     xx = min(max(x + dx, 0), w - 1)
                     bits = (bits << np.uint32(1)) | np.uint32(gray[yy, xx] < centre)
             out[y, x] = bits
-    return out
 
 
 def census_transform(gray: np.ndarray, *, radius: int = CENSUS_RADIUS) -> np.ndarray:
@@ -54,7 +54,10 @@ def census_transform(gray: np.ndarray, *, radius: int = CENSUS_RADIUS) -> np.nda
     """
     if (2 * radius + 1) ** 2 - 1 > 32:
         raise ValueError(f"a census window of radius {radius} needs more than 32 bits")
-    return _census_kernel(np.ascontiguousarray(gray, np.float32), int(radius))
+    gray = np.ascontiguousarray(gray, np.float32)
+    out = np.zeros(gray.shape, np.uint32)
+    run_parts(_census_rows, gray.shape[0], gray, int(radius), out)
+    return out
 
 
 @njit(cache=True, inline="always")
@@ -67,11 +70,10 @@ def popcount32(value):
     return np.int64(((v * np.uint64(0x01010101)) & np.uint64(0xFFFFFFFF)) >> np.uint64(24))
 
 
-@njit(cache=True, parallel=True)
-def _census_volume_kernel(left_bits, right_bits, min_disp, num_disp):
-    h, w = left_bits.shape
-    out = np.empty((h, w, num_disp), np.uint8)
-    for y in prange(h):
+@njit(cache=True, nogil=True)
+def _census_volume_rows(left_bits, right_bits, min_disp, num_disp, out, first, stop):
+    w = left_bits.shape[1]
+    for y in range(first, stop):
         for x in range(w):
             total = 0
             count = 0
@@ -90,7 +92,6 @@ def _census_volume_kernel(left_bits, right_bits, min_disp, num_disp):
                 xr = x - (min_disp + k)
                 if xr < 0 or xr >= w:
                     out[y, x, k] = neutral
-    return out
 
 
 def census_cost_volume(left_gray: np.ndarray, right_gray: np.ndarray, *, min_disp: int,
@@ -110,8 +111,11 @@ def census_cost_volume(left_gray: np.ndarray, right_gray: np.ndarray, *, min_dis
         Hamming distances, 0 ... :data:`CENSUS_BITS`.  Layers whose match falls outside
         the right image hold the mean of the pixel's other layers.
     """
-    return _census_volume_kernel(census_transform(left_gray), census_transform(right_gray),
-                                 int(min_disp), int(num_disp))
+    left_bits = census_transform(left_gray)
+    h, w = left_bits.shape
+    out = np.empty((h, w, num_disp), np.uint8)
+    run_parts(_census_volume_rows, h, left_bits, census_transform(right_gray), int(min_disp), int(num_disp), out)
+    return out
 
 
 def census_cost_volume_reference(left_gray, right_gray, *, min_disp, num_disp):
@@ -146,11 +150,10 @@ def census_cost_volume_reference(left_gray, right_gray, *, min_disp, num_disp):
     return out.astype(np.uint8)
 
 
-@njit(cache=True, parallel=True)
-def _spaced_census_kernel(gray, spacing_x, spacing_y):
+@njit(cache=True, nogil=True)
+def _spaced_census_rows(gray, spacing_x, spacing_y, out, first, stop):
     h, w = gray.shape
-    out = np.zeros((h, w), np.uint8)
-    for y in prange(h):
+    for y in range(first, stop):
         for x in range(w):
             centre = gray[y, x]
             bits = 0
@@ -162,7 +165,6 @@ def _spaced_census_kernel(gray, spacing_x, spacing_y):
                     xx = min(max(x + dx * spacing_x, 0), w - 1)
                     bits = (bits << 1) | (1 if gray[yy, xx] < centre else 0)
             out[y, x] = bits
-    return out
 
 
 def spaced_census(gray: np.ndarray, *, spacing_x: int, spacing_y: int) -> np.ndarray:
@@ -183,7 +185,10 @@ def spaced_census(gray: np.ndarray, *, spacing_x: int, spacing_y: int) -> np.nda
     ndarray, uint8 (H, W)
         Neighbours in row-major order, the first in the highest bit.
     """
-    return _spaced_census_kernel(np.ascontiguousarray(gray, np.float32), int(spacing_x), int(spacing_y))
+    gray = np.ascontiguousarray(gray, np.float32)
+    out = np.zeros(gray.shape, np.uint8)
+    run_parts(_spaced_census_rows, gray.shape[0], gray, int(spacing_x), int(spacing_y), out)
+    return out
 
 
 def lattice_census(lattice_gray: np.ndarray) -> np.ndarray:
@@ -202,10 +207,10 @@ def lattice_census(lattice_gray: np.ndarray) -> np.ndarray:
     return spaced_census(lattice_gray, spacing_x=1, spacing_y=1).astype(np.int64).ravel()
 
 
-@njit(cache=True, parallel=True)
-def _mix_census_kernel(volume, left_codes, right_codes, min_disp, weight, scale):
-    h, w, nd = volume.shape
-    for y in prange(h):
+@njit(cache=True, nogil=True)
+def _mix_census_rows(volume, left_codes, right_codes, min_disp, weight, scale, first, stop):
+    w, nd = volume.shape[1], volume.shape[2]
+    for y in range(first, stop):
         for x in range(w):
             for k in range(nd):
                 xr = min(max(x - (min_disp + k), 0), w - 1)
@@ -232,6 +237,6 @@ def mix_spaced_census(volume: np.ndarray, left_codes: np.ndarray, right_codes: n
     ndarray
         ``volume``.
     """
-    _mix_census_kernel(volume, left_codes, right_codes, int(min_disp), np.float32(census_weight),
-                       np.float32(volume_scale))
+    run_parts(_mix_census_rows, volume.shape[0], volume, left_codes, right_codes, int(min_disp),
+              np.float32(census_weight), np.float32(volume_scale))
     return volume

@@ -13,7 +13,9 @@ pixel ``x - d``.
 from __future__ import annotations
 
 import numpy as np
-from numba import njit, prange
+from numba import njit
+
+from .._kernels._parallel import run_parts
 from ._census import popcount32
 
 #: Default truncation of the absolute-difference cost (8-bit units). Truncation bounds
@@ -44,24 +46,25 @@ def to_gray(image_f32: np.ndarray) -> np.ndarray:
     if image_f32.shape[2] == 1:
         return np.ascontiguousarray(image_f32[:, :, 0])
     if image_f32.dtype == np.float32:
-        return _luma(image_f32)
+        h, w = image_f32.shape[:2]
+        gray = np.empty((h, w), dtype=np.float32)
+        run_parts(_luma_rows, h, image_f32, gray)
+        return gray
     red, green, blue = LUMA_WEIGHTS
     r, g, b = image_f32[:, :, 0], image_f32[:, :, 1], image_f32[:, :, 2]
     return (red * r + green * g + blue * b).astype(np.float32)
 
 
-@njit(cache=True, parallel=True)
-def _luma(image):
-    """:func:`to_gray` of float32 RGB on both threads: the same float32 products and sums, in
-    numpy's order, so the same values (numpy's three passes over strided channels took 0.6 ms
-    on Teddy, five times per decode)."""
-    h, w = image.shape[0], image.shape[1]
-    out = np.empty((h, w), dtype=np.float32)
+@njit(cache=True, nogil=True)
+def _luma_rows(image, out, first, stop):
+    """Rows ``[first, stop)`` of :func:`to_gray` of float32 RGB, on every thread: the same
+    float32 products and sums, in numpy's order, so the same values (numpy's three passes
+    over strided channels took 0.6 ms on Teddy, five times per decode)."""
+    w = image.shape[1]
     red, green, blue = LUMA_WEIGHTS
-    for y in prange(h):
+    for y in range(first, stop):
         for x in range(w):
             out[y, x] = red * image[y, x, 0] + green * image[y, x, 1] + blue * image[y, x, 2]
-    return out
 
 
 def float_and_gray(image: np.ndarray) -> tuple:
@@ -70,21 +73,21 @@ def float_and_gray(image: np.ndarray) -> tuple:
     0.3 ms of each Teddy decode, on one thread); other images the two calls' way."""
     if image.dtype == np.uint8 and image.ndim == 3 and image.shape[2] == 3:
         h, w = image.shape[:2]
-        return _float_and_luma_u8(np.ascontiguousarray(image), np.empty((h, w, 3), np.float32),
-                                  np.empty((h, w), np.float32))
+        image_f32, gray = np.empty((h, w, 3), np.float32), np.empty((h, w), np.float32)
+        run_parts(_float_and_luma_u8_rows, h, np.ascontiguousarray(image), image_f32, gray)
+        return image_f32, gray
     image_f32 = to_float_image(image)
     return image_f32, to_gray(image_f32)
 
 
-@njit(cache=True, parallel=True)
-def _float_and_luma_u8(image, out, gray):
+@njit(cache=True, nogil=True)
+def _float_and_luma_u8_rows(image, out, gray, first, stop):
     red, green, blue = LUMA_WEIGHTS
-    for y in prange(image.shape[0]):
+    for y in range(first, stop):
         for x in range(image.shape[1]):
             r, g, b = np.float32(image[y, x, 0]), np.float32(image[y, x, 1]), np.float32(image[y, x, 2])
             out[y, x, 0], out[y, x, 1], out[y, x, 2] = r, g, b
             gray[y, x] = red * r + green * g + blue * b
-    return out, gray
 
 
 @njit(cache=True, inline="always")
@@ -216,20 +219,20 @@ def dense_pixel_costs(left, left_gray, y, x, rev, min_disp, first_column, trunca
             acc[i] = min(acc[i] * inv_channels, truncation)
 
 
-@njit(cache=True, parallel=True)
-def _full_dsi(left, right, left_gray, right_gray, min_disp, num_disp, truncation, grad_truncation, grad_weight,
-              out):
-    h, w, channels = left.shape
+@njit(cache=True, nogil=True)
+def _full_dsi_rows(left, right, left_gray, right_gray, min_disp, num_disp, truncation, grad_truncation, grad_weight,
+                   out, first, stop):
+    """Rows ``[first, stop)`` of :func:`full_dsi` into ``out``."""
+    w, channels = left.shape[1], left.shape[2]
     use_grad = grad_weight > 0
     first_column = -(min_disp + num_disp - 1)
     span = (w - 1 - min_disp) - first_column + 1
-    for y in prange(h):
-        rev = np.empty((channels + 1, span), dtype=np.float32)
+    rev = np.empty((channels + 1, span), dtype=np.float32)
+    for y in range(first, stop):
         reversed_right_row(right, right_gray, y, first_column, use_grad, rev)
         for x in range(w):
             dense_pixel_costs(left, left_gray, y, x, rev, min_disp, first_column, truncation, grad_truncation,
                               grad_weight, out[y, x])
-    return out
 
 
 def horizontal_gradient(gray: np.ndarray) -> np.ndarray:
@@ -291,9 +294,10 @@ def full_dsi(left: np.ndarray, right: np.ndarray, *, min_disp: int, num_disp: in
     h, w, _ = left.shape
     out = np.empty((h, w, num_disp), dtype=np.float32)
     lg, rg = gradient_sources(left, right, grad_weight)
-    return _full_dsi(np.ascontiguousarray(left, np.float32), np.ascontiguousarray(right, np.float32),
-                     lg, rg, int(min_disp), int(num_disp), np.float32(truncation),
-                     np.float32(grad_truncation), np.float32(grad_weight), out)
+    run_parts(_full_dsi_rows, h, np.ascontiguousarray(left, np.float32), np.ascontiguousarray(right, np.float32),
+              lg, rg, int(min_disp), int(num_disp), np.float32(truncation),
+              np.float32(grad_truncation), np.float32(grad_weight), out)
+    return out
 
 
 def noise_level(image_f32: np.ndarray, *, block: int = 8, percentile: float = 20.0) -> float:

@@ -21,7 +21,9 @@ import time
 from dataclasses import asdict, dataclass, field
 
 import numpy as np
-from numba import njit, prange
+from numba import njit
+
+from .._kernels._parallel import run_parts
 
 #: Half-width, in lattice points, of the ZNCC window (5 x 5 samples).
 WINDOW_RADIUS = 2
@@ -133,9 +135,9 @@ class RangeEstimate:
         return out
 
 
-@njit(cache=True, parallel=True)
-def _zncc_search(lattice, image, ys, xs, d_first, d_count, d_step, shift, radius, best, best_d, second):
-    """Best ZNCC per lattice point over disparities ``d_first + k d_step`` at vertical ``shift``.
+@njit(cache=True, nogil=True)
+def _zncc_search(lattice, image, ys, xs, d_first, d_count, d_step, shift, radius, best, best_d, second, first, stop):
+    """Lattice rows ``radius + [first, stop)`` of the best ZNCC per lattice point over disparities ``d_first + k d_step`` at vertical ``shift``.
 
     ``lattice`` (R, C) holds the samples' gray values at rows ``ys`` and columns ``xs`` of
     the right view; ``image`` (H, W) is I1's gray.  For lattice point (r, c) the window is
@@ -149,7 +151,7 @@ def _zncc_search(lattice, image, ys, xs, d_first, d_count, d_step, shift, radius
     rows, cols = lattice.shape
     height, width = image.shape
     n = (2 * radius + 1) ** 2
-    for r in prange(radius, rows - radius):
+    for r in range(radius + first, radius + stop):
         if ys[r - radius] + shift < 0 or ys[r + radius] + shift >= height:
             continue
         col_a = np.zeros((cols, d_count), np.float32)
@@ -481,8 +483,8 @@ def _search(lattice, image, ys, xs, *, span, shift, budget):
     best_d = np.zeros((rows, cols), np.int64)
     second = np.full((rows, cols), -2.0, np.float64)
     if rows > 2 * radius and cols > 2 * radius:
-        _zncc_search(lattice, smooth, ys, xs, -(span // step) * step, 2 * (span // step) + 1, step, int(shift),
-                     radius, best, best_d, second)
+        run_parts(_zncc_search, rows - 2 * radius, lattice, smooth, ys, xs, -(span // step) * step,
+                  2 * (span // step) + 1, step, int(shift), radius, best, best_d, second)
     return lattice, ys, xs, best, best_d, second, step
 
 

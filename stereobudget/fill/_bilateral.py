@@ -15,9 +15,10 @@ from dataclasses import dataclass, replace
 from typing import NamedTuple
 
 import numpy as np
-from numba import get_num_threads, njit, prange
+from numba import get_num_threads, njit
 
 from .._kernels._jit import NO_REFCOUNTS
+from .._kernels._parallel import run_parts
 from .._kernels._scratch import empty_volume, zeroed_volume
 from ..cost._sparse import LeftPixels, RightSamples, SparseCostTerms, left_terms, left_terms_at, sample_cost
 from ._geometry import GridGeometry, grid_geometry
@@ -63,12 +64,6 @@ class FillScale:
 # the cell of the per-layer weight grid (same points, same summation order), so the
 # result is unchanged; the weight grids shrink from D channels to ``stride`` channels
 # plus a band of ~(max_disp + blur reach) / cell columns.
-
-
-@njit(cache=True, inline="always")
-def _layer_block(block, blocks, num_disp):
-    """Layers [first, last) of thread block ``block`` of ``blocks``."""
-    return block * num_disp // blocks, (block + 1) * num_disp // blocks
 
 
 @njit(cache=True, inline="always")
@@ -132,18 +127,16 @@ def _grid_scales(geom: GridGeometry) -> GridScales:
     return GridScales(1.0 / geom.cell_s, 1.0 / geom.cell_r)
 
 
-@njit(cache=True, parallel=True)
-def _splat_sparse_dsi_split(rows, cols, samples, pixels, min_disp, cost_terms, scales, grid_val, band_w, blocks):
+@njit(cache=True)
+def _splat_sparse_dsi_split(rows, cols, samples, pixels, min_disp, cost_terms, scales, grid_val, band_w):
     """Splat Eq. (2): right sample k at (row, col) meets left pixel (row, col + d) in layer d.
 
     The plain form of the row and lattice splats, which the tests hold them to.  The
     weights of layer i are written only into x-cells [0, B) of ``band_w`` (B = its second
     dimension); a full-width ``band_w`` gives every layer its own complete weight grid.
 
-    The layers are cut into ``blocks`` contiguous blocks, one per thread: every block
-    splats all samples into its own layers, so no two threads add into the same grid
-    value and every value receives its samples in the same order as on one thread (the
-    result does not depend on the thread count).  ``samples``: :class:`RightSamples`,
+    Sample by sample, on one thread: every grid value receives its samples in their
+    order, which the faster splats keep.  ``samples``: :class:`RightSamples`,
     ``pixels``: :class:`LeftPixels`, ``cost_terms``: :class:`stereobudget.cost.SparseTerms` (Eq. 2's, applied by
     :func:`stereobudget.cost.sample_cost`), ``scales``: :class:`GridScales`.
     """
@@ -153,35 +146,32 @@ def _splat_sparse_dsi_split(rows, cols, samples, pixels, min_disp, cost_terms, s
     w = guide.shape[1]
     # Samples placed off the pixel grid (a grid rectified at the host) carry their offsets.
     subpixel = samples.offsets.shape[0] == rows.shape[0]
-    blocks = max(1, min(blocks, num_disp))
     band_n = band_w.shape[1]
     values_flat = grid_val.reshape(grid_val.size)
     band_flat = band_w.reshape(band_w.size)
-    for block in prange(blocks):
-        first, last = _layer_block(block, blocks, num_disp)
-        weights = np.empty(8, dtype=np.float64)
-        offsets = np.empty(8, dtype=np.uint64)
-        band_offsets = np.empty(8, dtype=np.int64)
-        at = np.empty(pixels.image.shape[2], dtype=np.float32)
-        for k in range(rows.shape[0]):
-            y = rows[k]
-            y0, ty = _hat(y * inv_cs, gy_n)
-            fy = samples.offsets[k, 0] if subpixel else np.float32(0.0)
-            fx = samples.offsets[k, 1] if subpixel else np.float32(0.0)
-            for i in range(first, last):
-                x = cols[k] + min_disp + i
-                if x < 0 or x >= w:
-                    continue
-                if fy != 0 or fx != 0:
-                    at_left = left_terms_at(pixels, y, x, fy, fx, cost_terms, at)
-                else:
-                    at_left = left_terms(pixels, y, x, cost_terms)
-                cost = sample_cost(at_left, samples, k, cost_terms)
-                x0, tx = _hat(x * inv_cs, gx_n)
-                z0, tz = _hat(guide[y, x] * inv_cr, gz_n)
-                _corner_weights(ty, tx, tz, weights)
-                _corner_offsets(y0, x0, z0, gx_n, gz_n, band_n, num_disp, offsets, band_offsets)
-                _splat_cost(values_flat, band_flat, offsets, band_offsets, weights, i, cost)
+    weights = np.empty(8, dtype=np.float64)
+    offsets = np.empty(8, dtype=np.uint64)
+    band_offsets = np.empty(8, dtype=np.int64)
+    at = np.empty(pixels.image.shape[2], dtype=np.float32)
+    for k in range(rows.shape[0]):
+        y = rows[k]
+        y0, ty = _hat(y * inv_cs, gy_n)
+        fy = samples.offsets[k, 0] if subpixel else np.float32(0.0)
+        fx = samples.offsets[k, 1] if subpixel else np.float32(0.0)
+        for i in range(num_disp):
+            x = cols[k] + min_disp + i
+            if x < 0 or x >= w:
+                continue
+            if fy != 0 or fx != 0:
+                at_left = left_terms_at(pixels, y, x, fy, fx, cost_terms, at)
+            else:
+                at_left = left_terms(pixels, y, x, cost_terms)
+            cost = sample_cost(at_left, samples, k, cost_terms)
+            x0, tx = _hat(x * inv_cs, gx_n)
+            z0, tz = _hat(guide[y, x] * inv_cr, gz_n)
+            _corner_weights(ty, tx, tz, weights)
+            _corner_offsets(y0, x0, z0, gx_n, gz_n, band_n, num_disp, offsets, band_offsets)
+            _splat_cost(values_flat, band_flat, offsets, band_offsets, weights, i, cost)
 
 
 @njit(cache=True, inline="always")
@@ -208,8 +198,8 @@ def _splat_lattice_rows(r_lo, r_hi, cell_lo, cell_hi, lattice, samples, pixels, 
     :func:`_splat_sparse_dsi_split`; ``weights`` (8,) float64, ``offsets`` (8,) uint64 and
     ``band_offsets`` (8,) int64 are the caller's scratch.
 
-    A kernel of its own, not inlined: numba's parallel passes over :func:`_splat_lattice`
-    then see two calls instead of two copies of this loop (a third of its compile time).
+    A kernel of its own, not inlined: both passes of :func:`_splat_lattice` call it
+    instead of compiling a copy of this loop each.
     """
     sample_rows, offset_x, stride, n_cols = lattice
     grid_val, band_w, base_w, channel_of_residue = grids
@@ -275,7 +265,42 @@ def _splat_lattice_rows(r_lo, r_hi, cell_lo, cell_hi, lattice, samples, pixels, 
                 k -= 1
 
 
-@njit(cache=True, parallel=True)
+@njit(cache=True, nogil=True)
+def _splat_lattice_own(lattice, samples, pixels, min_disp, cost_terms, scales, grids, part_rows, shared_cells,
+                       zero_cells, first, stop):
+    """Parts ``[first, stop)`` of :func:`_splat_lattice`'s first pass: each zeroes its rows of
+    cells, then splats its sample rows into the cells below the reach of the part above."""
+    grid_val, band_w, base_w, _ = grids
+    gy_n = grid_val.shape[0]
+    val_row = grid_val.size // gy_n
+    band_row = band_w.size // gy_n
+    base_row = base_w.size // gy_n
+    values_flat = grid_val.reshape(grid_val.size)
+    band_flat = band_w.reshape(band_w.size)
+    base_flat = base_w.reshape(base_w.size)
+    for p in range(first, stop):
+        lo, hi = zero_cells[p], zero_cells[p + 1]
+        values_flat[lo * val_row:hi * val_row] = 0.0
+        band_flat[lo * band_row:hi * band_row] = 0.0
+        base_flat[lo * base_row:hi * base_row] = 0.0
+        # Cells up to the last one the part above reaches (shared_cells[p]) wait for the second pass.
+        _splat_lattice_rows(part_rows[p], part_rows[p + 1], shared_cells[p] + 1, gy_n, lattice, samples, pixels,
+                            min_disp, cost_terms, scales, grids, np.empty(8, dtype=np.float64),
+                            np.empty(8, dtype=np.uint64), np.empty(8, dtype=np.int64))
+
+
+@njit(cache=True, nogil=True)
+def _splat_lattice_shared(lattice, samples, pixels, min_disp, cost_terms, scales, grids, part_rows, shared_cells,
+                          first, stop):
+    """Parts ``[first, stop)`` of :func:`_splat_lattice`'s second pass: the cells each shares with the part above."""
+    for p in range(first, stop):
+        if shared_cells[p] >= 0:
+            # np.int64(0), not 0: a literal would compile the rows' kernel a second time.
+            _splat_lattice_rows(part_rows[p], part_rows[p + 1], np.int64(0), shared_cells[p], lattice, samples,
+                                pixels, min_disp, cost_terms, scales, grids, np.empty(8, dtype=np.float64),
+                                np.empty(8, dtype=np.uint64), np.empty(8, dtype=np.int64))
+
+
 def _splat_lattice(lattice, samples, pixels, min_disp, cost_terms, scales, grids, part_rows, shared_cells,
                    zero_cells):
     """All sample rows of a full lattice into the value, band and base-weight grids, the
@@ -290,34 +315,14 @@ def _splat_lattice(lattice, samples, pixels, min_disp, cost_terms, scales, grids
     neighbours share cells (``_lattice_parts``).
 
     The grids come uninitialised: part ``p`` first zeroes the rows of cells
-    ``[zero_cells[p], zero_cells[p + 1])``, which hold every cell its first loop writes
-    and none that another part's first loop writes (a separate pass of zeros over all
+    ``[zero_cells[p], zero_cells[p + 1])``, which hold every cell its first pass writes
+    and none that another part's first pass writes (a separate pass of zeros over all
     three grids took 0.8 ms of a Teddy decode).
     """
-    grid_val, band_w, base_w, _ = grids
-    gy_n = grid_val.shape[0]
     parts = part_rows.shape[0] - 1
-    val_row = grid_val.size // gy_n
-    band_row = band_w.size // gy_n
-    base_row = base_w.size // gy_n
-    values_flat = grid_val.reshape(grid_val.size)
-    band_flat = band_w.reshape(band_w.size)
-    base_flat = base_w.reshape(base_w.size)
-    for p in prange(parts):
-        lo, hi = zero_cells[p], zero_cells[p + 1]
-        values_flat[lo * val_row:hi * val_row] = 0.0
-        band_flat[lo * band_row:hi * band_row] = 0.0
-        base_flat[lo * base_row:hi * base_row] = 0.0
-        # Cells up to the last one the part above reaches (shared_cells[p]) wait for the second loop.
-        _splat_lattice_rows(part_rows[p], part_rows[p + 1], shared_cells[p] + 1, gy_n, lattice, samples, pixels,
-                            min_disp, cost_terms, scales, grids, np.empty(8, dtype=np.float64),
-                            np.empty(8, dtype=np.uint64), np.empty(8, dtype=np.int64))
-    for p in prange(parts):
-        if shared_cells[p] >= 0:
-            # np.int64(0), not 0: a literal would compile the rows' kernel a second time.
-            _splat_lattice_rows(part_rows[p], part_rows[p + 1], np.int64(0), shared_cells[p], lattice, samples,
-                                pixels, min_disp, cost_terms, scales, grids, np.empty(8, dtype=np.float64),
-                                np.empty(8, dtype=np.uint64), np.empty(8, dtype=np.int64))
+    common = (lattice, samples, pixels, min_disp, cost_terms, scales, grids, part_rows, shared_cells)
+    run_parts(_splat_lattice_own, parts, *common, zero_cells, parts=parts)
+    run_parts(_splat_lattice_shared, parts, *common, parts=parts)
 
 
 class SampleRows(NamedTuple):
@@ -389,25 +394,40 @@ def _splat_sample_rows(r_lo, r_hi, cell_lo, cell_hi, sample_rows, samples, pixel
                         weights_flat[np.uint64(band_offsets[c] + i)] += weights[c]
 
 
-@njit(cache=True, parallel=True)
-def _splat_rows(sample_rows, samples, pixels, min_disp, cost_terms, scales, grid_val, grid_w, part_rows,
-                shared_cells):
-    """All samples (:class:`SampleRows`) into zeroed value and weight grids, the sample rows
-    cut into parts as :func:`_splat_lattice` cuts them (and for the same reason: every sum
-    keeps the order of one pass)."""
+@njit(cache=True, nogil=True)
+def _splat_rows_own(sample_rows, samples, pixels, min_disp, cost_terms, scales, grid_val, grid_w, part_rows,
+                    shared_cells, first, stop):
+    """Parts ``[first, stop)`` of :func:`_splat_rows`' first pass (the cells below the part above's reach)."""
     gy_n = grid_val.shape[0]
     channels = pixels.image.shape[2]
-    parts = part_rows.shape[0] - 1
-    for p in prange(parts):
+    for p in range(first, stop):
         _splat_sample_rows(part_rows[p], part_rows[p + 1], shared_cells[p] + 1, gy_n, sample_rows, samples, pixels,
                            min_disp, cost_terms, scales, grid_val, grid_w, np.empty(8, dtype=np.float64),
                            np.empty(8, dtype=np.uint64), np.empty(8, dtype=np.int64), np.empty(channels, np.float32))
-    for p in prange(parts):
+
+
+@njit(cache=True, nogil=True)
+def _splat_rows_shared(sample_rows, samples, pixels, min_disp, cost_terms, scales, grid_val, grid_w, part_rows,
+                       shared_cells, first, stop):
+    """Parts ``[first, stop)`` of :func:`_splat_rows`' second pass (the cells shared with the part above)."""
+    channels = pixels.image.shape[2]
+    for p in range(first, stop):
         if shared_cells[p] >= 0:
             _splat_sample_rows(part_rows[p], part_rows[p + 1], np.int64(0), shared_cells[p], sample_rows, samples,
                                pixels, min_disp, cost_terms, scales, grid_val, grid_w, np.empty(8, dtype=np.float64),
                                np.empty(8, dtype=np.uint64), np.empty(8, dtype=np.int64),
                                np.empty(channels, np.float32))
+
+
+def _splat_rows(sample_rows, samples, pixels, min_disp, cost_terms, scales, grid_val, grid_w, part_rows,
+                shared_cells):
+    """All samples (:class:`SampleRows`) into zeroed value and weight grids, the sample rows
+    cut into parts as :func:`_splat_lattice` cuts them (and for the same reason: every sum
+    keeps the order of one pass)."""
+    parts = part_rows.shape[0] - 1
+    args = (sample_rows, samples, pixels, min_disp, cost_terms, scales, grid_val, grid_w, part_rows, shared_cells)
+    run_parts(_splat_rows_own, parts, *args, parts=parts)
+    run_parts(_splat_rows_shared, parts, *args, parts=parts)
 
 
 def _lattice_parts(sample_rows: np.ndarray, inv_cs: float, gy: int, parts: int) -> tuple:

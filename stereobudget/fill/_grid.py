@@ -30,15 +30,13 @@ import math
 from typing import NamedTuple
 
 import numpy as np
-from numba import get_num_threads, njit, prange
+from numba import njit
 
 from .._kernels._jit import NO_REFCOUNTS
+from .._kernels._parallel import run_parts
 from .._kernels._simd import MAX_PERIOD_LANES, PERIOD_READ_PAST, periodic_corner_sum
 from .._kernels._scratch import empty_volume, recycle, zeroed_volume
 from ._geometry import GridGeometry, grid_geometry
-
-_CHUNK = 512
-
 
 def _gaussian_kernel(std: float) -> np.ndarray:
     radius = max(1, int(math.ceil(3.0 * std)))
@@ -115,9 +113,9 @@ def _seven_taps(out, rows, first, step, kernel):
         out[i] = (((((k0 * r0[i] + k1 * r1[i]) + k2 * r2[i]) + k3 * r3[i]) + k4 * r4[i]) + k5 * r5[i]) + k6 * r6[i]
 
 
-@njit(cache=True, parallel=True)
-def _blur_grid_rows(src, dst, spatial, kernel_s, kernel_r, blocks):
-    """``dst`` = ``src`` (GY, GX, GZ, K) blurred along y and x by ``kernel_s``, then along z
+@njit(cache=True, nogil=True)
+def _blur_grid_rows(src, dst, spatial, kernel_s, kernel_r, first, stop):
+    """Grid rows ``[first, stop)`` of ``dst`` = ``src`` (GY, GX, GZ, K) blurred along y and x by ``kernel_s``, then along z
     by ``kernel_r``, with zero boundaries (taps outside the grid are left out; each sum
     starts from its first tap inside); ``spatial`` (GY, GX, K) = ``dst`` summed over
     intensity, the cells added in intensity order from the first (the slice's
@@ -132,12 +130,9 @@ def _blur_grid_rows(src, dst, spatial, kernel_s, kernel_r, blocks):
     """
     gy, gx, gz, k = src.shape
     run = gz * k
-    blocks = max(1, min(blocks, gy))
-    for block in prange(blocks):
-        slab = np.empty(gx * run, dtype=np.float32)
-        column = np.empty(run, dtype=np.float32)
-        _blur_grid_band(src, dst, spatial, kernel_s, kernel_r, block * gy // blocks, (block + 1) * gy // blocks,
-                        slab, column)
+    slab = np.empty(gx * run, dtype=np.float32)
+    column = np.empty(run, dtype=np.float32)
+    _blur_grid_band(src, dst, spatial, kernel_s, kernel_r, first, stop, slab, column)
 
 
 @njit(cache=True, **NO_REFCOUNTS)
@@ -202,8 +197,7 @@ def _blur_grid(grid: np.ndarray, geom: GridGeometry, *, extra_cells: int = 0) ->
     rows[cells:] = 0.0
     out = rows[:cells].reshape(grid.shape)
     spatial = np.zeros((gy, gx, k), np.float32)  # zeros: a grid without intensity cells sums to 0
-    _blur_grid_rows(grid, out, spatial, _gaussian_kernel(geom.blur_s), _gaussian_kernel(geom.blur_r),
-                    get_num_threads())
+    run_parts(_blur_grid_rows, gy, grid, out, spatial, _gaussian_kernel(geom.blur_s), _gaussian_kernel(geom.blur_r))
     recycle(grid)
     return (rows if extra_cells else out), spatial
 
@@ -521,17 +515,13 @@ def _slice_chunk(grids, guide, pixel_of_row, out, first, last, den, corner_index
         slice_pixel(grids, guide, y, x, out[k], den, corner_index, band_index, corner_weight)
 
 
-@njit(cache=True, parallel=True)
-def _slice_rows(grids, guide, pixel_of_row, out):
-    """Row k of ``out`` (N, K) = :func:`slice_pixel` at pixel ``pixel_of_row[k]`` (row-major)."""
-    row_count = out.shape[0]
-    # The rows' work is a kernel of its own, without reference counts: numba's parallel
-    # passes then see one call, not the inlined slice (which compiled for ~30 s).
-    for chunk in prange((row_count + _CHUNK - 1) // _CHUNK):
-        den, corner_index, band_index, corner_weight = slice_scratch(out.shape[1])
-        _slice_chunk(grids, guide, pixel_of_row, out, chunk * _CHUNK, min((chunk + 1) * _CHUNK, row_count),
-                     den, corner_index, band_index, corner_weight)
-    return out
+@njit(cache=True, nogil=True)
+def _slice_rows(grids, guide, pixel_of_row, out, first, stop):
+    """Rows ``[first, stop)`` of ``out`` (N, K): row k = :func:`slice_pixel` at pixel ``pixel_of_row[k]``
+    (row-major); one part of :func:`slice_volume`'s :func:`~stereobudget._kernels.run_parts`."""
+    # The rows' work is a kernel of its own, without reference counts (it allocates nothing).
+    den, corner_index, band_index, corner_weight = slice_scratch(out.shape[1])
+    _slice_chunk(grids, guide, pixel_of_row, out, first, stop, den, corner_index, band_index, corner_weight)
 
 
 def slice_volume(guide: np.ndarray, grids: SliceGrids, *, pixel_of_row: np.ndarray | None = None) -> np.ndarray:
@@ -544,7 +534,7 @@ def slice_volume(guide: np.ndarray, grids: SliceGrids, *, pixel_of_row: np.ndarr
     """
     h, w = guide.shape
     out = empty_volume((h * w, grids.values.shape[1]))
-    _slice_rows(grids, guide, _pixels_of_rows(pixel_of_row, h * w), out)
+    run_parts(_slice_rows, h * w, grids, guide, _pixels_of_rows(pixel_of_row, h * w), out)
     return out if pixel_of_row is not None else out.reshape(h, w, -1)
 
 

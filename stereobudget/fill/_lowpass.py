@@ -9,7 +9,9 @@ same box-and-triangle operator (:func:`block_lowpass`, :func:`upsample_block_mea
 from __future__ import annotations
 
 import numpy as np
-from numba import njit, prange
+from numba import njit
+
+from .._kernels._parallel import run_parts
 
 from ..cost._cost import to_float_image
 from ..sampling._patterns import grid_shape
@@ -49,39 +51,40 @@ def _first_last_sample(position, radius, offset, stride, count):
     return first, last
 
 
-@njit(cache=True, parallel=True)
-def _lattice_lowpass(lattice, offset_y, stride_y, offset_x, stride_x, taps, threshold, out):
-    """Normalised Gaussian convolution of the impulses of a sample lattice, separably.
-
-    ``lattice`` (rows, cols, C) float32 holds the samples of ``[oy::sy, ox::sx]``; ``out``
-    (H, W, C) float32 receives the blurred impulses divided by the blurred mask.  The
-    mask's blur is ``wy(y) * wx(x)`` (the lattice is a product of two 1-D combs), so only
-    the values need the 2-D pass: x along the lattice rows, then y onto every image row.
-    """
-    rows, cols, channels = lattice.shape
-    height, width = out.shape[0], out.shape[1]
+@njit(cache=True, nogil=True)
+def _lattice_lowpass_x(lattice, offset_x, stride_x, taps, along_x, first, stop):
+    """Lattice rows ``[first, stop)`` of the x pass of :func:`_lattice_lowpass` into ``along_x``
+    (rows, W * C), zeroed: only the lattice rows carry impulses (1 / stride_y of the image rows)."""
+    cols, channels = lattice.shape[1], lattice.shape[2]
+    width = along_x.shape[1] // channels
     radius = taps.shape[0] // 2
-    weight_x = np.zeros(width, np.float32)
-    for x in range(width):
-        first, last = _first_last_sample(x, radius, offset_x, stride_x, cols)
-        for j in range(first, last + 1):
-            weight_x[x] += taps[offset_x + j * stride_x - x + radius]
-    # The x pass: only the lattice rows carry impulses (1 / stride_y of the image rows).
-    along_x = np.zeros((rows, width * channels), np.float32)
-    for r in prange(rows):
+    for r in range(first, stop):
         row = along_x[r]
         for x in range(width):
-            first, last = _first_last_sample(x, radius, offset_x, stride_x, cols)
-            for j in range(first, last + 1):
+            lo, hi = _first_last_sample(x, radius, offset_x, stride_x, cols)
+            for j in range(lo, hi + 1):
                 tap = taps[offset_x + j * stride_x - x + radius]
                 for c in range(channels):
                     row[x * channels + c] += tap * lattice[r, j, c]
-    for y in prange(height):
+
+
+@njit(cache=True, nogil=True)
+def _lattice_lowpass_y(along_x, cols, offset_y, stride_y, offset_x, stride_x, taps, threshold, out, first, stop):
+    """Image rows ``[first, stop)`` of :func:`_lattice_lowpass`: the y pass of ``along_x`` and the division."""
+    rows = along_x.shape[0]
+    width, channels = out.shape[1], out.shape[2]
+    radius = taps.shape[0] // 2
+    weight_x = np.zeros(width, np.float32)
+    for x in range(width):
+        lo, hi = _first_last_sample(x, radius, offset_x, stride_x, cols)
+        for j in range(lo, hi + 1):
+            weight_x[x] += taps[offset_x + j * stride_x - x + radius]
+    for y in range(first, stop):
         row = out[y].reshape(width * channels)
         row[:] = 0
-        first, last = _first_last_sample(y, radius, offset_y, stride_y, rows)
+        lo, hi = _first_last_sample(y, radius, offset_y, stride_y, rows)
         weight_y = np.float32(0.0)
-        for k in range(first, last + 1):
+        for k in range(lo, hi + 1):
             tap = taps[offset_y + k * stride_y - y + radius]
             weight_y += tap
             source = along_x[k]
@@ -93,6 +96,21 @@ def _lattice_lowpass(lattice, offset_y, stride_y, offset_x, stride_x, taps, thre
             scale = np.float32(1.0) / weight if weight > threshold else np.float32(0.0)
             for c in range(channels):
                 row[x * channels + c] *= scale
+
+
+def _lattice_lowpass(lattice, offset_y, stride_y, offset_x, stride_x, taps, threshold, out):
+    """Normalised Gaussian convolution of the impulses of a sample lattice, separably.
+
+    ``lattice`` (rows, cols, C) float32 holds the samples of ``[oy::sy, ox::sx]``; ``out``
+    (H, W, C) float32 receives the blurred impulses divided by the blurred mask.  The
+    mask's blur is ``wy(y) * wx(x)`` (the lattice is a product of two 1-D combs), so only
+    the values need the 2-D pass: x along the lattice rows, then y onto every image row.
+    """
+    rows, cols, channels = lattice.shape
+    along_x = np.zeros((rows, out.shape[1] * channels), np.float32)
+    run_parts(_lattice_lowpass_x, rows, lattice, offset_x, stride_x, taps, along_x)
+    run_parts(_lattice_lowpass_y, out.shape[0], along_x, cols, offset_y, stride_y, offset_x, stride_x, taps,
+              threshold, out)
     return out
 
 

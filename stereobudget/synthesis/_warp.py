@@ -11,7 +11,9 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from numba import njit, prange
+from numba import njit
+
+from .._kernels._parallel import run_parts
 
 from ..cost._cost import to_float_image
 from ..errors import MismatchError, OptionError
@@ -30,9 +32,9 @@ DEFAULT_Z_TOLERANCE = 1.0
 _MIN_SPLAT_WEIGHT = 1e-3
 
 
-@njit(cache=True, parallel=True)
-def _warp_splat(left, disparity, z_tolerance, min_weight, out, weight):
-    """Sub-pixel forward splat, row by row (rows are independent: the warp is horizontal).
+@njit(cache=True, nogil=True)
+def _warp_splat(left, disparity, z_tolerance, min_weight, out, weight, first, stop):
+    """Rows ``[first, stop)`` of a sub-pixel forward splat, row by row (rows are independent: the warp is horizontal).
 
     Pass 1 decides which surface each right pixel shows: the largest disparity among the
     splats that *cover its centre* (weight >= 1/2, i.e. the left pixel's footprint
@@ -43,8 +45,8 @@ def _warp_splat(left, disparity, z_tolerance, min_weight, out, weight):
     disparity, so a surface blends with itself (linear interpolation along the row) but
     never with what lies behind it.
     """
-    h, w, n_ch = left.shape
-    for y in prange(h):
+    w, n_ch = left.shape[1], left.shape[2]
+    for y in range(first, stop):
         covering = np.full(w, -np.inf, dtype=np.float32)
         reaching = np.full(w, -np.inf, dtype=np.float32)
         for x in range(w):
@@ -86,7 +88,6 @@ def _warp_splat(left, disparity, z_tolerance, min_weight, out, weight):
                 inv = np.float32(1.0) / weight[y, x]
                 for c in range(n_ch):
                     out[y, x, c] *= inv
-    return out, weight
 
 
 @njit(cache=True, inline="always")
@@ -120,9 +121,9 @@ def _cover(y, x_from, x_to, left, xa, xb, value_a, value_b, depth_a, depth_b, z_
             weight[y, p] += 1
 
 
-@njit(cache=True, parallel=True)
-def _warp_linear(left, disparity, z_tolerance, out, weight):
-    """Forward warp of each row as a piecewise-linear curve (a 1-D mesh warp).
+@njit(cache=True, nogil=True)
+def _warp_linear(left, disparity, z_tolerance, out, weight, first, stop):
+    """Rows ``[first, stop)`` of a forward warp of each row as a piecewise-linear curve (a 1-D mesh warp).
 
     Two horizontally adjacent left pixels whose disparities differ by at most
     ``z_tolerance`` belong to one surface: the right pixels between their two landing
@@ -133,8 +134,8 @@ def _warp_linear(left, disparity, z_tolerance, out, weight):
     different surfaces meet in a z-buffer (pass 1: largest disparity; pass 2: average of
     the surfaces within ``z_tolerance`` of it).
     """
-    h, w, _ = left.shape
-    for y in prange(h):
+    w = left.shape[1]
+    for y in range(first, stop):
         nearest = np.full(w, -np.inf, dtype=np.float32)
         for accumulate in (False, True):
             for x in range(w):
@@ -166,14 +167,13 @@ def _warp_linear(left, disparity, z_tolerance, out, weight):
                 inv = np.float32(1.0) / weight[y, x]
                 for c in range(left.shape[2]):
                     out[y, x, c] *= inv
-    return out, weight
 
 
-@njit(cache=True, parallel=True)
-def _warp_nearest(left, disparity, out, depth):
-    """Each left pixel lands on the right pixel nearest to ``x - d``; the largest d wins."""
-    h, w, n_ch = left.shape
-    for y in prange(h):
+@njit(cache=True, nogil=True)
+def _warp_nearest(left, disparity, out, depth, first, stop):
+    """Rows ``[first, stop)``: each left pixel lands on the right pixel nearest to ``x - d``; the largest d wins."""
+    w, n_ch = left.shape[1], left.shape[2]
+    for y in range(first, stop):
         for x in range(w):
             d = disparity[y, x]
             if not np.isfinite(d):
@@ -184,7 +184,6 @@ def _warp_nearest(left, disparity, out, depth):
             depth[y, xr] = d
             for c in range(n_ch):
                 out[y, xr, c] = left[y, x, c]
-    return out, depth
 
 
 def warp_left_to_right(left: np.ndarray, disparity: np.ndarray, *, mode: str = DEFAULT_WARP_MODE,
@@ -265,15 +264,15 @@ def warp_left_to_right(left: np.ndarray, disparity: np.ndarray, *, mode: str = D
     out = np.zeros((h, w, c), np.float32)
     if mode == "linear":
         weight = np.zeros((h, w), np.float32)
-        _warp_linear(img, disp, np.float32(z_tolerance), out, weight)
+        run_parts(_warp_linear, h, img, disp, np.float32(z_tolerance), out, weight)
         holes = weight <= 0
     elif mode == "splat":
         weight = np.zeros((h, w), np.float32)
-        _warp_splat(img, disp, np.float32(z_tolerance), np.float32(_MIN_SPLAT_WEIGHT), out, weight)
+        run_parts(_warp_splat, h, img, disp, np.float32(z_tolerance), np.float32(_MIN_SPLAT_WEIGHT), out, weight)
         holes = weight <= 0
     else:
         depth = np.full((h, w), -np.inf, np.float32)
-        _warp_nearest(img, disp, out, depth)
+        run_parts(_warp_nearest, h, img, disp, out, depth)
         holes = ~np.isfinite(depth)
     return out, holes
 

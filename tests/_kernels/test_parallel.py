@@ -1,12 +1,92 @@
-"""Parallel kernels that replace numpy one-liners between stages: the same values, bit for bit."""
+"""Kernels run on threads (run_parts), and the parallel forms of numpy one-liners: the same values, bit for bit."""
 
+import os
+import sys
+import threading
+import warnings
+
+import numba
 import numpy as np
 import pytest
+from numba import njit
 
-from stereobudget._kernels import fill_zero, take
+from stereobudget._kernels import fill_zero, part_bounds, run_parts, take
 from stereobudget.cost import float_and_gray, to_float_image, to_gray
 from stereobudget.aggregate._refine import _stable_levels
 from stereobudget.aggregate._mst import _uint16_keys
+
+
+@njit(nogil=True)
+def _count_visits(visits, first, stop):
+    for i in range(first, stop):
+        visits[i] += 1
+
+
+@pytest.mark.parametrize("count", [0, 1, 2, 3, 7, 1000])
+@pytest.mark.parametrize("parts", [None, 1, 2, 5])
+def test_run_parts_runs_every_item_once(count, parts):
+    visits = np.zeros(count, np.int64)
+    run_parts(_count_visits, count, visits, parts=parts)
+    np.testing.assert_array_equal(visits, np.ones(count, np.int64))
+
+
+@pytest.mark.parametrize("count, parts", [(10, 3), (2, 2), (5, 8), (0, 2)])
+def test_part_bounds_are_contiguous_and_even(count, parts):
+    bounds = part_bounds(count, parts)
+    assert bounds[0] == 0 and bounds[-1] == count and len(bounds) == parts + 1
+    sizes = np.diff(bounds)
+    assert sizes.min() >= 0 and sizes.max() - sizes.min() <= 1
+
+
+def test_run_parts_uses_other_threads_and_one_when_numba_has_one():
+    threads = []
+
+    def record(first, stop):
+        threads.append((threading.get_ident(), first, stop))
+
+    run_parts(record, 4, parts=2)
+    if numba.get_num_threads() >= 2:
+        assert sorted((a, b) for _, a, b in threads) == [(0, 2), (2, 4)]
+        assert len({ident for ident, _, _ in threads}) == 2
+    saved = numba.get_num_threads()
+    numba.set_num_threads(1)
+    try:
+        threads.clear()
+        run_parts(record, 4)
+        assert threads == [(threading.get_ident(), 0, 4)]
+    finally:
+        numba.set_num_threads(saved)
+
+
+def test_run_parts_raises_a_parts_error_after_every_part_has_finished():
+    finished = []
+
+    def part(first, stop):
+        if first > 0:
+            raise ValueError("bad part")
+        finished.append(first)
+
+    with pytest.raises(ValueError, match="bad part"):
+        run_parts(part, 4, parts=2)
+    assert finished == [0]
+
+
+@pytest.mark.skipif(not hasattr(os, "fork") or sys.platform == "darwin", reason="needs fork")
+def test_run_parts_works_in_a_forked_child():
+    visits = np.zeros(10, np.int64)
+    run_parts(_count_visits, 10, visits, parts=2)   # the parent's pool exists before the fork
+    with warnings.catch_warnings():   # Python 3.12 warns of fork() beside threads; the child runs no Python lock
+        warnings.simplefilter("ignore", DeprecationWarning)
+        pid = os.fork()
+    if pid == 0:   # pragma: no cover - the child reports through its exit status
+        try:
+            child = np.zeros(10, np.int64)
+            run_parts(_count_visits, 10, child, parts=2)
+            os._exit(0 if child.sum() == 10 else 1)
+        except BaseException:
+            os._exit(2)
+    _, status = os.waitpid(pid, 0)
+    assert os.waitstatus_to_exitcode(status) == 0
 
 
 @pytest.mark.parametrize("size", [0, 1, 5, 70_000, 200_003])

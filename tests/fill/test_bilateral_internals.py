@@ -47,7 +47,7 @@ def _force_parts(monkeypatch, parts):
 def _splat_per_sample(rows, cols, samples, pixels, min_disp, cost_terms, geom, grid_val, grid_w):
     """The general route's splat as the per-sample kernel (the samples must come sorted)."""
     bilateral._splat_sparse_dsi_split(rows, cols, samples, pixels, min_disp, cost_terms, bilateral._grid_scales(geom),
-                                      grid_val, grid_w, 2)
+                                      grid_val, grid_w)
 
 
 @pytest.mark.parametrize("stride, offset_x, offset_y, min_disp, num_disp, steps", [
