@@ -24,6 +24,8 @@ import numba
 import numpy as np
 from numba import njit
 
+from ._jit import RANGE_KERNEL
+
 _pool_lock = threading.Lock()
 _pool: ThreadPoolExecutor | None = None
 _pool_pid = 0
@@ -48,7 +50,7 @@ def part_bounds(count: int, parts: int) -> list:
     return [count * t // parts for t in range(parts + 1)]
 
 
-def run_parts(kernel, count: int, *args, parts: int | None = None) -> None:
+def run_parts(kernel, count: int, *args, parts: int | None = None, scratch=None) -> None:
     """Call ``kernel(*args, first, stop)`` over contiguous ranges covering ``[0, count)``, at once.
 
     Parameters
@@ -61,20 +63,26 @@ def run_parts(kernel, count: int, *args, parts: int | None = None) -> None:
         Ranges to split into; default :func:`numba.get_num_threads` (which
         ``numba.set_num_threads`` lowers, as it does for numba's parallel loops).
         Never more than ``count``; at most one range when the caller has one thread.
+    scratch : callable, optional
+        Returns a tuple of scratch arrays for one range, passed to the kernel after
+        ``args`` (``kernel(*args, *scratch(), first, stop)``): each range gets its own.
 
     The calling thread runs the first range and the pool the others; an exception in any
     range is raised here once all have finished.
     """
+    def own(*bounds):
+        return (*args, *scratch(), *bounds) if scratch is not None else (*args, *bounds)
+
     threads = numba.get_num_threads()
     parts = min(count, threads if parts is None else parts)
     if parts <= 1 or threads <= 1:
-        kernel(*args, 0, count)
+        kernel(*own(0, count))
         return
     bounds = part_bounds(count, parts)
     pool = _workers(parts - 1)
-    futures = [pool.submit(kernel, *args, bounds[t], bounds[t + 1]) for t in range(1, parts)]
+    futures = [pool.submit(kernel, *own(bounds[t], bounds[t + 1])) for t in range(1, parts)]
     try:
-        kernel(*args, bounds[0], bounds[1])
+        kernel(*own(bounds[0], bounds[1]))
     finally:
         for future in futures:
             future.exception()   # wait for every range before anything is raised
@@ -89,7 +97,7 @@ def take(values, index):
     return out
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, **RANGE_KERNEL)
 def _take_part(values, index, out, first, stop):
     for i in range(first, stop):
         out[i] = values[index[i]]
@@ -100,6 +108,6 @@ def fill_zero(flat):
     run_parts(_zero_part, flat.shape[0], flat)
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, **RANGE_KERNEL)
 def _zero_part(flat, first, stop):
     flat[first:stop] = 0.0

@@ -22,6 +22,7 @@ import numba
 import numpy as np
 from numba import njit
 
+from .._kernels._jit import RANGE_KERNEL, RANGE_KERNEL_COUNTED
 from .._kernels._parallel import run_parts
 from .._kernels._prefetch import prefetch_for_write
 from ..errors import ImageReadError, OptionError
@@ -529,11 +530,11 @@ def _median3_uint16_keys(image):
     non_finite = np.zeros(h, dtype=np.int64)
     run_parts(_key_rows, h, image, keys, non_finite)
     out = np.empty((h, w, channels), dtype=np.uint16)
-    run_parts(_median3_rows, h, keys, out)
+    run_parts(_median3_rows, h, keys, out, scratch=lambda: (np.empty(w, dtype=np.uint16),))
     return out, int(non_finite.sum())
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, **RANGE_KERNEL)
 def _key_rows(image, keys, non_finite, first, stop):
     """Rows ``[first, stop)`` of :func:`_median3_uint16_keys`' keys, with a replicated column at
     both ends; ``non_finite[y]`` counts row y's values that are not finite."""
@@ -553,11 +554,11 @@ def _key_rows(image, keys, non_finite, first, stop):
         non_finite[y] = count
 
 
-@njit(cache=True, nogil=True)
-def _median3_rows(keys, out, first, stop):
-    """Rows ``[first, stop)`` of :func:`_median3_uint16_keys`' medians of the keys."""
+@njit(cache=True, **RANGE_KERNEL)
+def _median3_rows(keys, out, median, first, stop):
+    """Rows ``[first, stop)`` of :func:`_median3_uint16_keys`' medians of the keys (``median`` (W,)
+    uint16: scratch)."""
     h, w, channels = out.shape
-    median = np.empty(w, dtype=np.uint16)
     for y in range(first, stop):
         above, below = max(y - 1, 0), min(y + 1, h - 1)
         for c in range(channels):
@@ -597,7 +598,7 @@ def _uint16_keys(image):
     return out
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, **RANGE_KERNEL)
 def _uint16_key_rows(image, out, first, stop):
     """Rows ``[first, stop)`` of :func:`_uint16_keys`."""
     w, channels = image.shape[1], image.shape[2]
@@ -632,7 +633,7 @@ def _rooted_tree(image, key_count, similarity_of_key, out, split, size):
     return reached
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, **RANGE_KERNEL_COUNTED)
 def _rooted_tree_pair(first, first_keys, first_similarity, first_out, first_split, first_size,
                       second, second_keys, second_similarity, second_out, second_split, second_size, reached,
                       first_part, stop_part):

@@ -33,7 +33,7 @@ from .._kernels._prefetch import prefetch_row
 from .._kernels._simd import LANES, skewed_block_copy
 from ..fill._grid import SliceGrids, slice_pixel, slice_scratch
 from ..cost._cost import dense_pixel_costs, gradient_sources, reversed_right_row
-from .._kernels._jit import NO_REFCOUNTS
+from .._kernels._jit import NO_REFCOUNTS, RANGE_KERNEL
 from .._kernels._parallel import run_parts
 from .._kernels._scratch import empty_volume
 
@@ -173,26 +173,30 @@ def _pair_item(first_row, last_row, pair, min_disp, terms, grids, mix, left_row_
             _gather_right_rows(buffer, w, y, min_disp, right_rows, right_flat, right_row_of_pixel, starts)
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, **RANGE_KERNEL)
 def _pair_rows(pair, min_disp, terms, grids, mix, left_row_of_pixel, right_row_of_pixel, left_rows, right_rows,
-               first, stop):
-    """Left costs of image rows ``[first, stop)`` into ``left_rows``, the right view's into ``right_rows``.
+               buffer, rev, dense, den, corner_index, band_index, corner_weight, starts, first, stop):
+    """Left costs of image rows ``[first, stop)`` into ``left_rows``, the right view's into
+    ``right_rows``, on the range's scratch (:func:`_pair_scratch`).
 
     ``pair``: :class:`DensePair`, ``terms``: :class:`DenseTerms`, ``grids``: :class:`SliceGrids`
     or None, ``mix``: :class:`FillMix`.
     With grids the cost is ``grid_weight * slice + dense_weight * dense``, else the dense cost.
     ``right_rows`` with no rows skips the right view.
     """
-    w, channels = pair.left.shape[1], pair.left.shape[2]
-    num_disp = left_rows.shape[1]
-    # Rows past the image that the right view's diagonals read (the clamped border column).
-    border_rows = max(min_disp, 0) + num_disp + LANES if right_rows.shape[0] > 0 else 0
-    span = w + num_disp - 1  # columns -(min_disp + num_disp - 1) .. w - 1 - min_disp of the right image
-    den, corner_index, band_index, corner_weight = slice_scratch(num_disp)
     _pair_item(first, stop, pair, min_disp, terms, grids, mix, left_row_of_pixel, right_row_of_pixel, left_rows,
-               right_rows, np.empty((w + border_rows, num_disp), dtype=np.float32),
-               np.empty((channels + 1, span), dtype=np.float32), np.empty(num_disp, dtype=np.float32),
-               den, corner_index, band_index, corner_weight, np.empty(LANES, dtype=np.int64))
+               right_rows, buffer, rev, dense, den, corner_index, band_index, corner_weight, starts)
+
+
+def _pair_scratch(width, channels, min_disp, num_disp, right_view):
+    """Scratch of one range of :func:`_pair_rows`: the row buffer, the reversed right row, the dense
+    costs of a pixel, the slice's scratch and the right view's gather starts."""
+    # Rows past the image that the right view's diagonals read (the clamped border column).
+    border_rows = max(min_disp, 0) + num_disp + LANES if right_view else 0
+    span = width + num_disp - 1  # columns -(min_disp + num_disp - 1) .. w - 1 - min_disp of the right image
+    return (np.empty((width + border_rows, num_disp), dtype=np.float32),
+            np.empty((channels + 1, span), dtype=np.float32), np.empty(num_disp, dtype=np.float32),
+            *slice_scratch(num_disp), np.empty(LANES, dtype=np.int64))
 
 
 def pair_cost_rows(left: np.ndarray, right: np.ndarray, *, min_disp: int, num_disp: int, truncation: float,
@@ -243,7 +247,8 @@ def pair_cost_rows(left: np.ndarray, right: np.ndarray, *, min_disp: int, num_di
     terms = DenseTerms(np.float32(truncation), np.float32(grad_truncation), np.float32(grad_weight))
     mix = FillMix(np.ascontiguousarray(guide, np.float32) if use_grids else np.zeros((1, 1), np.float32),
                   np.float32(mix_weights[0]), np.float32(mix_weights[1]))
-    run_parts(_pair_rows, h, DensePair(left, right, left_gray, right_gray), int(min_disp), terms, grids, mix,
-              left_layout.row_of_pixel, right_layout.row_of_pixel if right_layout is not None else empty_rows,
-              left_rows, right_rows)
+    run_parts(_pair_rows, h, DensePair(left, right, left_gray, right_gray), int(min_disp),
+              terms, grids, mix, left_layout.row_of_pixel,
+              right_layout.row_of_pixel if right_layout is not None else empty_rows, left_rows, right_rows,
+              scratch=lambda: _pair_scratch(w, left.shape[2], int(min_disp), int(num_disp), right_layout is not None))
     return left_rows, (right_rows if right_layout is not None else None)

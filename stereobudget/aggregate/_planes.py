@@ -33,6 +33,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
+from .._kernels._jit import RANGE_KERNEL, RANGE_KERNEL_COUNTED
 from .._kernels._parallel import run_parts
 
 #: Segment spacing (pixels), grey-level compactness and k-means rounds of the segmentation.
@@ -61,7 +62,7 @@ def grid_seeds(height: int, width: int, size: int):
     return ny, nx, cy, cx
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, **RANGE_KERNEL)
 def _assign(gray, cg, cy, cx, ny, nx, size, inv_m2, inv_s2, labels, first, stop):
     """Rows ``[first, stop)`` of ``labels``: each pixel's nearest centre among its 3 x 3 seed cells."""
     w = gray.shape[1]
@@ -235,7 +236,7 @@ def _segment_pixels(disparity, confident, labels, n, sizes):
     return start, px, py, pd
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, **RANGE_KERNEL_COUNTED)
 def _fit_segments(start, px, py, pd, scales, tolerance, planes, inliers, counts, first, stop):
     """Segments ``[first, stop)`` of :func:`fit_segment_planes`, from :func:`_segment_pixels`."""
     for k in range(first, stop):
@@ -317,7 +318,7 @@ def _crossing_errors(field, gray, labels, lattice, oy, ox, sy, sx, err, hits):
                 j += 1.0
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, **RANGE_KERNEL)
 def _propose(disparity, confident, labels, planes, accept, tolerance, lo, hi, replace_confident, anchored,
              snap, out, first, stop):
     """Rows ``[first, stop)``: each pixel's value if its segment's plane is taken (module docstring, step 3).
@@ -359,7 +360,7 @@ def _propose(disparity, confident, labels, planes, accept, tolerance, lo, hi, re
             out[y, x] = p
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, **RANGE_KERNEL)
 def _arbitrate(disparity, proposed, labels, take, out, first, stop):
     """Rows ``[first, stop)`` of ``out``: the proposed value where the pixel's segment takes its plane."""
     w = disparity.shape[1]

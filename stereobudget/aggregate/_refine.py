@@ -19,14 +19,15 @@ import numpy as np
 from numba import njit
 
 from .._kernels import _scratch as scratch
+from .._kernels._jit import RANGE_KERNEL
 from .._kernels._parallel import run_parts
 from . import _mst, _tree
 from ._winner import subpixel_winner
 
 
-@njit(cache=True, nogil=True)
-def _right_disparity_from_rows(aggregated, row_of_pixel, width, min_disp, support, nd, out, first, stop):
-    diagonal = np.empty(nd, dtype=np.float32)
+@njit(cache=True, **RANGE_KERNEL)
+def _right_disparity_from_rows(aggregated, row_of_pixel, width, min_disp, support, nd, out, diagonal, first, stop):
+    """Rows ``[first, stop)`` of :func:`right_disparity_from_left`; ``diagonal`` (D,) float32 is scratch."""
     for y in range(first, stop):
         for xr in range(width):
             for i in range(nd):
@@ -80,7 +81,8 @@ def right_disparity_from_left(aggregated, min_disp, support, *, layout=None, num
     layers = rows.shape[1] if num_disp is None else int(num_disp)
     out = np.empty((h, w), dtype=np.float32)
     run_parts(_right_disparity_from_rows, h, rows, row_of_pixel, w, int(min_disp),
-              np.ascontiguousarray(support, np.float32), layers, out)
+              np.ascontiguousarray(support, np.float32), layers, out,
+              scratch=lambda: (np.empty(layers, dtype=np.float32),))
     return out
 
 
@@ -91,7 +93,7 @@ def left_right_stable(disp_left, disp_right, tolerance):
     return out
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, **RANGE_KERNEL)
 def _stable_rows(disp_left, disp_right, tolerance, out, first, stop):
     """Rows ``[first, stop)`` of :func:`left_right_stable`."""
     w = disp_left.shape[1]
@@ -110,7 +112,7 @@ def _stable_levels(disp, stable, pixel_of_row):
     return out
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, **RANGE_KERNEL)
 def _stable_levels_part(disp, stable, pixel_of_row, out, first, stop):
     """Rows ``[first, stop)`` of :func:`_stable_levels` into ``out``."""
     for k in range(first, stop):
@@ -271,7 +273,7 @@ def fill_from_row(disparity, valid):
     return out
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, **RANGE_KERNEL)
 def _fill_rows(disparity, valid, out, first, stop):
     """Rows ``[first, stop)`` of :func:`fill_from_row` into ``out`` (a copy of ``disparity``)."""
     w = disparity.shape[1]

@@ -28,6 +28,7 @@ paths from below), so the fused route (:func:`semiglobal_disparities`) and the v
 import numpy as np
 from numba import njit
 
+from .._kernels._jit import RANGE_KERNEL, RANGE_KERNEL_COUNTED
 from .._kernels._parallel import run_parts
 
 from ._winner import refined_winner, subpixel_winner
@@ -125,14 +126,13 @@ def _vertical_pass(cost, guide, direction, steps, p1, p2, edge_scale, total):
                     total[y, x, d] += cur[k, x, d]
 
 
-@njit(cache=True, nogil=True)
-def _vertical_paths(cost, guide, p1, p2, edge_scale, diagonals, down, up, first, stop):
+@njit(cache=True, **RANGE_KERNEL_COUNTED)
+def _vertical_paths(cost, guide, p1, p2, edge_scale, steps, down, up, first, stop):
     """Passes ``[first, stop)`` of the two vertical ones (0: down, 1: up), each into its own sum.
 
     Both run at once, each on its own thread: a pass is sequential over rows, and
     splitting a row between threads would make every row wait for the slower one (badly
-    so on a busy machine)."""
-    steps = np.array([0, 1, -1]) if diagonals else np.array([0])
+    so on a busy machine).  ``steps``: the x steps of the paths, [0, 1, -1] with the diagonals."""
     for j in range(first, stop):
         if j == 0:
             _vertical_pass(cost, guide, 1, steps, p1, p2, edge_scale, down)
@@ -205,26 +205,29 @@ def _row_winners(row, min_disp, y, left, right, layers, best_v, best_k):
         right[y, x] = np.float32(min_disp + best_k[x]) if best_k[x] >= 0 else np.float32(np.nan)
 
 
-@njit(cache=True, nogil=True)
-def _horizontal_paths_into(cost, guide, p1, p2, edge_scale, down, up, first, stop):
-    """Rows ``[first, stop)`` of ``down`` += the horizontal paths and ``up`` (the aggregated volume)."""
-    path = np.empty((2, cost.shape[2]), np.float32)
+@njit(cache=True, **RANGE_KERNEL)
+def _horizontal_paths_into(cost, guide, p1, p2, edge_scale, down, up, path, first, stop):
+    """Rows ``[first, stop)`` of ``down`` += the horizontal paths and ``up`` (the aggregated volume);
+    ``path`` (2, D) float32 is the range's scratch."""
     for y in range(first, stop):
         _row_total(cost, guide, p1, p2, edge_scale, down, up, y, down[y], path)
 
 
-@njit(cache=True, nogil=True)
-def _horizontal_paths_winners_rows(cost, guide, p1, p2, edge_scale, down, up, min_disp, left, right, first, stop):
-    """Rows ``[first, stop)`` of :func:`_horizontal_paths_winners`."""
-    w, nd = cost.shape[1], cost.shape[2]
-    path = np.empty((2, nd), np.float32)
-    row = np.empty((w, nd), np.float32)
-    layers = np.empty((nd, w), np.float32)
-    best_v = np.empty(w, np.float32)
-    best_k = np.empty(w, np.int32)
+@njit(cache=True, **RANGE_KERNEL)
+def _horizontal_paths_winners_rows(cost, guide, p1, p2, edge_scale, down, up, min_disp, left, right, path, row,
+                                   layers, best_v, best_k, first, stop):
+    """Rows ``[first, stop)`` of :func:`_horizontal_paths_winners`, on the range's scratch
+    (:func:`_row_scratch`)."""
     for y in range(first, stop):
         _row_total(cost, guide, p1, p2, edge_scale, down, up, y, row, path)
         _row_winners(row, min_disp, y, left, right, layers, best_v, best_k)
+
+
+def _row_scratch(w, nd):
+    """Scratch of one range of rows: the path pair (2, D), the row's sum (W, D), its layers
+    (D, W), and the right view's best value and layer (W,) float32 / int32."""
+    return (np.empty((2, nd), np.float32), np.empty((w, nd), np.float32), np.empty((nd, w), np.float32),
+            np.empty(w, np.float32), np.empty(w, np.int32))
 
 
 def _horizontal_paths_winners(cost, guide, p1, p2, edge_scale, down, up, min_disp):
@@ -232,7 +235,8 @@ def _horizontal_paths_winners(cost, guide, p1, p2, edge_scale, down, up, min_dis
     h, w = cost.shape[:2]
     left = np.empty((h, w), np.float32)
     right = np.empty((h, w), np.float32)
-    run_parts(_horizontal_paths_winners_rows, h, cost, guide, p1, p2, edge_scale, down, up, min_disp, left, right)
+    run_parts(_horizontal_paths_winners_rows, h, cost, guide, p1, p2, edge_scale, down, up, min_disp, left, right,
+              scratch=lambda: _row_scratch(w, cost.shape[2]))
     return left, right
 
 
@@ -246,7 +250,8 @@ def _vertical_sums(cost, guide, p1, p2, edge_scale, paths):
     down = np.empty(cost.shape, np.float32)
     up = np.empty(cost.shape, np.float32)
     p1, p2, scale = np.float32(p1), np.float32(max(p1, p2)), np.float32(edge_scale)
-    run_parts(_vertical_paths, 2, cost, guide, p1, p2, scale, paths == 8, down, up, parts=2)
+    steps = np.array([0, 1, -1] if paths == 8 else [0], np.int64)
+    run_parts(_vertical_paths, 2, cost, guide, p1, p2, scale, steps, down, up, parts=2)
     return cost, guide, p1, p2, scale, down, up
 
 
@@ -272,7 +277,8 @@ def semiglobal_aggregate(cost: np.ndarray, guide: np.ndarray, *, p1: float, p2: 
     ndarray, float32 (H, W, D)
     """
     cost, guide, p1, p2, scale, down, up = _vertical_sums(cost, guide, p1, p2, edge_scale, paths)
-    run_parts(_horizontal_paths_into, cost.shape[0], cost, guide, p1, p2, scale, down, up)
+    run_parts(_horizontal_paths_into, cost.shape[0], cost, guide, p1, p2, scale, down, up,
+              scratch=lambda: (np.empty((2, cost.shape[2]), np.float32),))
     return down
 
 
@@ -352,7 +358,7 @@ def semiglobal_winners(total, min_disp):
     return left, right
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, **RANGE_KERNEL)
 def _winners_rows(total, min_disp, left, right, first, stop):
     """Rows ``[first, stop)`` of :func:`semiglobal_winners`."""
     w, nd = total.shape[1], total.shape[2]

@@ -23,7 +23,7 @@ import numba
 import numpy as np
 from numba import njit
 
-from .._kernels._jit import NO_REFCOUNTS
+from .._kernels._jit import NO_REFCOUNTS, RANGE_KERNEL_COUNTED
 from .._kernels._parallel import run_parts, take
 from .._kernels._prefetch import prefetch_row
 from .._kernels._simd import LANES, blend_rows_first_min
@@ -348,7 +348,7 @@ def _aggregate_serial(cost, levels, order, parent, weight, out, winners, min_dis
     _downward_cut(order, parent, weight, out, 1, node_count, cuts[:count], winners, min_disp, competing)
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, **RANGE_KERNEL_COUNTED)
 def _aggregate_pair(first, first_order, first_parent, first_weight, first_size, second, second_order,
                     second_parent, second_weight, second_size, counted, winners, min_disp, competing, first_part,
                     stop_part):
@@ -398,7 +398,7 @@ def _aggregate_two_threads(cost, levels, order, parent, weight, out, winners, mi
               cuts, counts, above, parts=2)
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, **RANGE_KERNEL_COUNTED)
 def _upward_halves(cost, levels, order, parent, weight, out, min_disp, a0, subtree_size, size, ready, cuts, counts,
                    first, stop):
     """Halves ``[first, stop)`` (0: A, 1: B) of :func:`_aggregate_two_threads`' upward pass."""
@@ -455,7 +455,7 @@ def _carry_up(order, parent, weight, out, winners, min_disp, competing, a0):
     return above
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, **RANGE_KERNEL_COUNTED)
 def _downward_halves(order, parent, weight, out, winners, min_disp, competing, a0, subtree_size, cuts, counts, above,
                      first, stop):
     """Halves ``[first, stop)`` (0: A, 1: B) of :func:`_aggregate_two_threads`' downward pass."""

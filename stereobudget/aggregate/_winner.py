@@ -12,6 +12,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
+from .._kernels._jit import RANGE_KERNEL
 from .._kernels._parallel import run_parts
 from .._kernels._simd import first_min
 
@@ -60,7 +61,7 @@ def winner_take_all(cost, min_disp):
     return out
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, **RANGE_KERNEL)
 def _winner_rows(cost, min_disp, out, first, stop):
     """Rows ``[first, stop)`` of :func:`winner_take_all`."""
     for y in range(first, stop):

@@ -11,6 +11,7 @@ match is the number of differing bits.
 import numpy as np
 from numba import njit
 
+from .._kernels._jit import RANGE_KERNEL
 from .._kernels._parallel import run_parts
 
 #: Window radius of the census transform (5 x 5 window, 24 bits).
@@ -19,7 +20,7 @@ CENSUS_RADIUS = 2
 CENSUS_BITS = (2 * CENSUS_RADIUS + 1) ** 2 - 1
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, **RANGE_KERNEL)
 def _census_rows(gray, radius, out, first, stop):
     h, w = gray.shape
     for y in range(first, stop):
@@ -70,7 +71,7 @@ def popcount32(value):
     return np.int64(((v * np.uint64(0x01010101)) & np.uint64(0xFFFFFFFF)) >> np.uint64(24))
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, **RANGE_KERNEL)
 def _census_volume_rows(left_bits, right_bits, min_disp, num_disp, out, first, stop):
     w = left_bits.shape[1]
     for y in range(first, stop):
@@ -150,7 +151,7 @@ def census_cost_volume_reference(left_gray, right_gray, *, min_disp, num_disp):
     return out.astype(np.uint8)
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, **RANGE_KERNEL)
 def _spaced_census_rows(gray, spacing_x, spacing_y, out, first, stop):
     h, w = gray.shape
     for y in range(first, stop):
@@ -207,7 +208,7 @@ def lattice_census(lattice_gray: np.ndarray) -> np.ndarray:
     return spaced_census(lattice_gray, spacing_x=1, spacing_y=1).astype(np.int64).ravel()
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, **RANGE_KERNEL)
 def _mix_census_rows(volume, left_codes, right_codes, min_disp, weight, scale, first, stop):
     w, nd = volume.shape[1], volume.shape[2]
     for y in range(first, stop):

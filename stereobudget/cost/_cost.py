@@ -15,6 +15,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
+from .._kernels._jit import RANGE_KERNEL
 from .._kernels._parallel import run_parts
 from ._census import popcount32
 
@@ -55,7 +56,7 @@ def to_gray(image_f32: np.ndarray) -> np.ndarray:
     return (red * r + green * g + blue * b).astype(np.float32)
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, **RANGE_KERNEL)
 def _luma_rows(image, out, first, stop):
     """Rows ``[first, stop)`` of :func:`to_gray` of float32 RGB, on every thread: the same
     float32 products and sums, in numpy's order, so the same values (numpy's three passes
@@ -80,7 +81,7 @@ def float_and_gray(image: np.ndarray) -> tuple:
     return image_f32, to_gray(image_f32)
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, **RANGE_KERNEL)
 def _float_and_luma_u8_rows(image, out, gray, first, stop):
     red, green, blue = LUMA_WEIGHTS
     for y in range(first, stop):
@@ -219,15 +220,14 @@ def dense_pixel_costs(left, left_gray, y, x, rev, min_disp, first_column, trunca
             acc[i] = min(acc[i] * inv_channels, truncation)
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, **RANGE_KERNEL)
 def _full_dsi_rows(left, right, left_gray, right_gray, min_disp, num_disp, truncation, grad_truncation, grad_weight,
-                   out, first, stop):
-    """Rows ``[first, stop)`` of :func:`full_dsi` into ``out``."""
-    w, channels = left.shape[1], left.shape[2]
+                   out, rev, first, stop):
+    """Rows ``[first, stop)`` of :func:`full_dsi` into ``out``; ``rev`` (C + 1, span) float32 is the
+    range's scratch (:func:`reversed_right_row`)."""
+    w = left.shape[1]
     use_grad = grad_weight > 0
     first_column = -(min_disp + num_disp - 1)
-    span = (w - 1 - min_disp) - first_column + 1
-    rev = np.empty((channels + 1, span), dtype=np.float32)
     for y in range(first, stop):
         reversed_right_row(right, right_gray, y, first_column, use_grad, rev)
         for x in range(w):
@@ -296,7 +296,8 @@ def full_dsi(left: np.ndarray, right: np.ndarray, *, min_disp: int, num_disp: in
     lg, rg = gradient_sources(left, right, grad_weight)
     run_parts(_full_dsi_rows, h, np.ascontiguousarray(left, np.float32), np.ascontiguousarray(right, np.float32),
               lg, rg, int(min_disp), int(num_disp), np.float32(truncation),
-              np.float32(grad_truncation), np.float32(grad_weight), out)
+              np.float32(grad_truncation), np.float32(grad_weight), out,
+              scratch=lambda: (np.empty((left.shape[2] + 1, w + num_disp - 1), dtype=np.float32),))
     return out
 
 

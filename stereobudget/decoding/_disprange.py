@@ -23,6 +23,7 @@ from dataclasses import asdict, dataclass, field
 import numpy as np
 from numba import njit
 
+from .._kernels._jit import RANGE_KERNEL
 from .._kernels._parallel import run_parts
 
 #: Half-width, in lattice points, of the ZNCC window (5 x 5 samples).
@@ -135,9 +136,12 @@ class RangeEstimate:
         return out
 
 
-@njit(cache=True, nogil=True)
-def _zncc_search(lattice, image, ys, xs, d_first, d_count, d_step, shift, radius, best, best_d, second, first, stop):
-    """Lattice rows ``radius + [first, stop)`` of the best ZNCC per lattice point over disparities ``d_first + k d_step`` at vertical ``shift``.
+@njit(cache=True, **RANGE_KERNEL)
+def _zncc_search(lattice, image, ys, xs, d_first, d_count, d_step, shift, radius, best, best_d, second, col_a,
+                 col_aa, col_ga, first_k, last_k, col_g, col_gg, win_a, win_aa, win_ga, first, stop):
+    """Lattice rows ``radius + [first, stop)`` of the best ZNCC per lattice point over
+    disparities ``d_first + k d_step`` at vertical ``shift``, on the range's scratch (``col_*``,
+    ``first_k``, ``last_k``: (C, D) and (C,) per lattice row; ``win_*``: (D,)).
 
     ``lattice`` (R, C) holds the samples' gray values at rows ``ys`` and columns ``xs`` of
     the right view; ``image`` (H, W) is I1's gray.  For lattice point (r, c) the window is
@@ -154,13 +158,11 @@ def _zncc_search(lattice, image, ys, xs, d_first, d_count, d_step, shift, radius
     for r in range(radius + first, radius + stop):
         if ys[r - radius] + shift < 0 or ys[r + radius] + shift >= height:
             continue
-        col_a = np.zeros((cols, d_count), np.float32)
-        col_aa = np.zeros((cols, d_count), np.float32)
-        col_ga = np.zeros((cols, d_count), np.float32)
-        first_k = np.empty(cols, np.int64)
-        last_k = np.empty(cols, np.int64)
-        col_g = np.zeros(cols, np.float64)
-        col_gg = np.zeros(cols, np.float64)
+        col_a[:, :] = 0.0
+        col_aa[:, :] = 0.0
+        col_ga[:, :] = 0.0
+        col_g[:] = 0.0
+        col_gg[:] = 0.0
         for c in range(cols):
             # Disparities at which column c lands inside I1.
             lo = -(-(-xs[c] - d_first) // d_step)
@@ -180,9 +182,6 @@ def _zncc_search(lattice, image, ys, xs, d_first, d_count, d_step, shift, radius
                     col_a[c, k] += a
                     col_aa[c, k] += a * a
                     col_ga[c, k] += g * a
-        win_a = np.empty(d_count, np.float64)
-        win_aa = np.empty(d_count, np.float64)
-        win_ga = np.empty(d_count, np.float64)
         for c in range(radius, cols - radius):
             lo = first_k[c - radius]
             hi = last_k[c + radius]
@@ -483,8 +482,16 @@ def _search(lattice, image, ys, xs, *, span, shift, budget):
     best_d = np.zeros((rows, cols), np.int64)
     second = np.full((rows, cols), -2.0, np.float64)
     if rows > 2 * radius and cols > 2 * radius:
-        run_parts(_zncc_search, rows - 2 * radius, lattice, smooth, ys, xs, -(span // step) * step,
-                  2 * (span // step) + 1, step, int(shift), radius, best, best_d, second)
+        d_count = 2 * (span // step) + 1
+
+        def scratch():
+            # Per lattice row: column sums of the window at every disparity, and the window's.
+            return (np.empty((cols, d_count), np.float32), np.empty((cols, d_count), np.float32),
+                    np.empty((cols, d_count), np.float32), np.empty(cols, np.int64), np.empty(cols, np.int64),
+                    np.empty(cols, np.float64), np.empty(cols, np.float64), np.empty(d_count, np.float64),
+                    np.empty(d_count, np.float64), np.empty(d_count, np.float64))
+        run_parts(_zncc_search, rows - 2 * radius, lattice, smooth, ys, xs, -(span // step) * step, d_count, step,
+                  int(shift), radius, best, best_d, second, scratch=scratch)
     return lattice, ys, xs, best, best_d, second, step
 
 

@@ -17,7 +17,7 @@ from typing import NamedTuple
 import numpy as np
 from numba import get_num_threads, njit
 
-from .._kernels._jit import NO_REFCOUNTS
+from .._kernels._jit import NO_REFCOUNTS, RANGE_KERNEL
 from .._kernels._parallel import run_parts
 from .._kernels._scratch import empty_volume, zeroed_volume
 from ..cost._sparse import LeftPixels, RightSamples, SparseCostTerms, left_terms, left_terms_at, sample_cost
@@ -265,9 +265,9 @@ def _splat_lattice_rows(r_lo, r_hi, cell_lo, cell_hi, lattice, samples, pixels, 
                 k -= 1
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, **RANGE_KERNEL)
 def _splat_lattice_own(lattice, samples, pixels, min_disp, cost_terms, scales, grids, part_rows, shared_cells,
-                       zero_cells, first, stop):
+                       zero_cells, weights, offsets, band_offsets, first, stop):
     """Parts ``[first, stop)`` of :func:`_splat_lattice`'s first pass: each zeroes its rows of
     cells, then splats its sample rows into the cells below the reach of the part above."""
     grid_val, band_w, base_w, _ = grids
@@ -285,20 +285,18 @@ def _splat_lattice_own(lattice, samples, pixels, min_disp, cost_terms, scales, g
         base_flat[lo * base_row:hi * base_row] = 0.0
         # Cells up to the last one the part above reaches (shared_cells[p]) wait for the second pass.
         _splat_lattice_rows(part_rows[p], part_rows[p + 1], shared_cells[p] + 1, gy_n, lattice, samples, pixels,
-                            min_disp, cost_terms, scales, grids, np.empty(8, dtype=np.float64),
-                            np.empty(8, dtype=np.uint64), np.empty(8, dtype=np.int64))
+                            min_disp, cost_terms, scales, grids, weights, offsets, band_offsets)
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, **RANGE_KERNEL)
 def _splat_lattice_shared(lattice, samples, pixels, min_disp, cost_terms, scales, grids, part_rows, shared_cells,
-                          first, stop):
+                          weights, offsets, band_offsets, first, stop):
     """Parts ``[first, stop)`` of :func:`_splat_lattice`'s second pass: the cells each shares with the part above."""
     for p in range(first, stop):
         if shared_cells[p] >= 0:
             # np.int64(0), not 0: a literal would compile the rows' kernel a second time.
             _splat_lattice_rows(part_rows[p], part_rows[p + 1], np.int64(0), shared_cells[p], lattice, samples,
-                                pixels, min_disp, cost_terms, scales, grids, np.empty(8, dtype=np.float64),
-                                np.empty(8, dtype=np.uint64), np.empty(8, dtype=np.int64))
+                                pixels, min_disp, cost_terms, scales, grids, weights, offsets, band_offsets)
 
 
 def _splat_lattice(lattice, samples, pixels, min_disp, cost_terms, scales, grids, part_rows, shared_cells,
@@ -321,8 +319,15 @@ def _splat_lattice(lattice, samples, pixels, min_disp, cost_terms, scales, grids
     """
     parts = part_rows.shape[0] - 1
     common = (lattice, samples, pixels, min_disp, cost_terms, scales, grids, part_rows, shared_cells)
-    run_parts(_splat_lattice_own, parts, *common, zero_cells, parts=parts)
-    run_parts(_splat_lattice_shared, parts, *common, parts=parts)
+    run_parts(_splat_lattice_own, parts, *common, zero_cells, parts=parts, scratch=_corner_scratch)
+    run_parts(_splat_lattice_shared, parts, *common, parts=parts, scratch=_corner_scratch)
+
+
+def _corner_scratch(channels=0):
+    """Scratch of the splats: 8 corner weights (float64), offsets (uint64) and band offsets
+    (int64), and with ``channels`` I1's terms at a sub-pixel position (float32)."""
+    corners = np.empty(8, dtype=np.float64), np.empty(8, dtype=np.uint64), np.empty(8, dtype=np.int64)
+    return corners + (np.empty(channels, np.float32),) if channels else corners
 
 
 class SampleRows(NamedTuple):
@@ -394,29 +399,25 @@ def _splat_sample_rows(r_lo, r_hi, cell_lo, cell_hi, sample_rows, samples, pixel
                         weights_flat[np.uint64(band_offsets[c] + i)] += weights[c]
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, **RANGE_KERNEL)
 def _splat_rows_own(sample_rows, samples, pixels, min_disp, cost_terms, scales, grid_val, grid_w, part_rows,
-                    shared_cells, first, stop):
+                    shared_cells, weights, offsets, band_offsets, at, first, stop):
     """Parts ``[first, stop)`` of :func:`_splat_rows`' first pass (the cells below the part above's reach)."""
     gy_n = grid_val.shape[0]
-    channels = pixels.image.shape[2]
     for p in range(first, stop):
         _splat_sample_rows(part_rows[p], part_rows[p + 1], shared_cells[p] + 1, gy_n, sample_rows, samples, pixels,
-                           min_disp, cost_terms, scales, grid_val, grid_w, np.empty(8, dtype=np.float64),
-                           np.empty(8, dtype=np.uint64), np.empty(8, dtype=np.int64), np.empty(channels, np.float32))
+                           min_disp, cost_terms, scales, grid_val, grid_w, weights, offsets, band_offsets, at)
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, **RANGE_KERNEL)
 def _splat_rows_shared(sample_rows, samples, pixels, min_disp, cost_terms, scales, grid_val, grid_w, part_rows,
-                       shared_cells, first, stop):
+                       shared_cells, weights, offsets, band_offsets, at, first, stop):
     """Parts ``[first, stop)`` of :func:`_splat_rows`' second pass (the cells shared with the part above)."""
-    channels = pixels.image.shape[2]
     for p in range(first, stop):
         if shared_cells[p] >= 0:
             _splat_sample_rows(part_rows[p], part_rows[p + 1], np.int64(0), shared_cells[p], sample_rows, samples,
-                               pixels, min_disp, cost_terms, scales, grid_val, grid_w, np.empty(8, dtype=np.float64),
-                               np.empty(8, dtype=np.uint64), np.empty(8, dtype=np.int64),
-                               np.empty(channels, np.float32))
+                               pixels, min_disp, cost_terms, scales, grid_val, grid_w, weights, offsets, band_offsets,
+                               at)
 
 
 def _splat_rows(sample_rows, samples, pixels, min_disp, cost_terms, scales, grid_val, grid_w, part_rows,
@@ -426,8 +427,9 @@ def _splat_rows(sample_rows, samples, pixels, min_disp, cost_terms, scales, grid
     keeps the order of one pass)."""
     parts = part_rows.shape[0] - 1
     args = (sample_rows, samples, pixels, min_disp, cost_terms, scales, grid_val, grid_w, part_rows, shared_cells)
-    run_parts(_splat_rows_own, parts, *args, parts=parts)
-    run_parts(_splat_rows_shared, parts, *args, parts=parts)
+    channels = pixels.image.shape[2]
+    run_parts(_splat_rows_own, parts, *args, parts=parts, scratch=lambda: _corner_scratch(channels))
+    run_parts(_splat_rows_shared, parts, *args, parts=parts, scratch=lambda: _corner_scratch(channels))
 
 
 def _lattice_parts(sample_rows: np.ndarray, inv_cs: float, gy: int, parts: int) -> tuple:

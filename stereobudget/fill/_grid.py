@@ -32,7 +32,7 @@ from typing import NamedTuple
 import numpy as np
 from numba import njit
 
-from .._kernels._jit import NO_REFCOUNTS
+from .._kernels._jit import NO_REFCOUNTS, RANGE_KERNEL
 from .._kernels._parallel import run_parts
 from .._kernels._simd import MAX_PERIOD_LANES, PERIOD_READ_PAST, periodic_corner_sum
 from .._kernels._scratch import empty_volume, recycle, zeroed_volume
@@ -113,10 +113,10 @@ def _seven_taps(out, rows, first, step, kernel):
         out[i] = (((((k0 * r0[i] + k1 * r1[i]) + k2 * r2[i]) + k3 * r3[i]) + k4 * r4[i]) + k5 * r5[i]) + k6 * r6[i]
 
 
-@njit(cache=True, nogil=True)
-def _blur_grid_rows(src, dst, spatial, kernel_s, kernel_r, first, stop):
-    """Grid rows ``[first, stop)`` of ``dst`` = ``src`` (GY, GX, GZ, K) blurred along y and x by ``kernel_s``, then along z
-    by ``kernel_r``, with zero boundaries (taps outside the grid are left out; each sum
+@njit(cache=True, **RANGE_KERNEL)
+def _blur_grid_rows(src, dst, spatial, kernel_s, kernel_r, slab, column, first, stop):
+    """Grid rows ``[first, stop)`` of ``dst`` = ``src`` (GY, GX, GZ, K) blurred along y and x by
+    ``kernel_s``, then along z by ``kernel_r``, with zero boundaries (taps outside the grid are left out; each sum
     starts from its first tap inside); ``spatial`` (GY, GX, K) = ``dst`` summed over
     intensity, the cells added in intensity order from the first (the slice's
     spatial-only fallback), while each column is in cache.
@@ -128,10 +128,6 @@ def _blur_grid_rows(src, dst, spatial, kernel_s, kernel_r, first, stop):
     Empty cells are blurred like the others: skipping them (the splat's occupancy flags)
     saved nothing at one cell per sigma, where ~40 % of the cells are occupied.
     """
-    gy, gx, gz, k = src.shape
-    run = gz * k
-    slab = np.empty(gx * run, dtype=np.float32)
-    column = np.empty(run, dtype=np.float32)
     _blur_grid_band(src, dst, spatial, kernel_s, kernel_r, first, stop, slab, column)
 
 
@@ -197,7 +193,8 @@ def _blur_grid(grid: np.ndarray, geom: GridGeometry, *, extra_cells: int = 0) ->
     rows[cells:] = 0.0
     out = rows[:cells].reshape(grid.shape)
     spatial = np.zeros((gy, gx, k), np.float32)  # zeros: a grid without intensity cells sums to 0
-    run_parts(_blur_grid_rows, gy, grid, out, spatial, _gaussian_kernel(geom.blur_s), _gaussian_kernel(geom.blur_r))
+    run_parts(_blur_grid_rows, gy, grid, out, spatial, _gaussian_kernel(geom.blur_s), _gaussian_kernel(geom.blur_r),
+              scratch=lambda: (np.empty(gx * gz * k, np.float32), np.empty(gz * k, np.float32)))
     recycle(grid)
     return (rows if extra_cells else out), spatial
 
@@ -436,7 +433,6 @@ def _tile_into(period, out, n):
         filled += count
 
 
-@njit(cache=True, inline="always")
 def slice_scratch(num_layers):
     """Scratch of :func:`slice_pixel` for ``num_layers`` layers: (den, corner_index, band_index, corner_weight)."""
     return (np.empty(num_layers + MAX_PERIOD_LANES, dtype=np.float32), np.empty(8, dtype=np.int64),
@@ -515,12 +511,10 @@ def _slice_chunk(grids, guide, pixel_of_row, out, first, last, den, corner_index
         slice_pixel(grids, guide, y, x, out[k], den, corner_index, band_index, corner_weight)
 
 
-@njit(cache=True, nogil=True)
-def _slice_rows(grids, guide, pixel_of_row, out, first, stop):
-    """Rows ``[first, stop)`` of ``out`` (N, K): row k = :func:`slice_pixel` at pixel ``pixel_of_row[k]``
-    (row-major); one part of :func:`slice_volume`'s :func:`~stereobudget._kernels.run_parts`."""
-    # The rows' work is a kernel of its own, without reference counts (it allocates nothing).
-    den, corner_index, band_index, corner_weight = slice_scratch(out.shape[1])
+@njit(cache=True, **RANGE_KERNEL)
+def _slice_rows(grids, guide, pixel_of_row, out, den, corner_index, band_index, corner_weight, first, stop):
+    """Rows ``[first, stop)`` of ``out`` (N, K): row k = :func:`slice_pixel` at pixel
+    ``pixel_of_row[k]`` (row-major), on the range's scratch (:func:`slice_scratch`)."""
     _slice_chunk(grids, guide, pixel_of_row, out, first, stop, den, corner_index, band_index, corner_weight)
 
 
@@ -534,7 +528,8 @@ def slice_volume(guide: np.ndarray, grids: SliceGrids, *, pixel_of_row: np.ndarr
     """
     h, w = guide.shape
     out = empty_volume((h * w, grids.values.shape[1]))
-    run_parts(_slice_rows, h * w, grids, guide, _pixels_of_rows(pixel_of_row, h * w), out)
+    run_parts(_slice_rows, h * w, grids, guide, _pixels_of_rows(pixel_of_row, h * w), out,
+              scratch=lambda: slice_scratch(out.shape[1]))
     return out if pixel_of_row is not None else out.reshape(h, w, -1)
 
 

@@ -11,6 +11,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
+from .._kernels._jit import RANGE_KERNEL
 from .._kernels._parallel import run_parts
 
 from ..cost._cost import to_float_image
@@ -51,7 +52,7 @@ def _first_last_sample(position, radius, offset, stride, count):
     return first, last
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, **RANGE_KERNEL)
 def _lattice_lowpass_x(lattice, offset_x, stride_x, taps, along_x, first, stop):
     """Lattice rows ``[first, stop)`` of the x pass of :func:`_lattice_lowpass` into ``along_x``
     (rows, W * C), zeroed: only the lattice rows carry impulses (1 / stride_y of the image rows)."""
@@ -68,13 +69,15 @@ def _lattice_lowpass_x(lattice, offset_x, stride_x, taps, along_x, first, stop):
                     row[x * channels + c] += tap * lattice[r, j, c]
 
 
-@njit(cache=True, nogil=True)
-def _lattice_lowpass_y(along_x, cols, offset_y, stride_y, offset_x, stride_x, taps, threshold, out, first, stop):
-    """Image rows ``[first, stop)`` of :func:`_lattice_lowpass`: the y pass of ``along_x`` and the division."""
+@njit(cache=True, **RANGE_KERNEL)
+def _lattice_lowpass_y(along_x, cols, offset_y, stride_y, offset_x, stride_x, taps, threshold, out, weight_x, first,
+                       stop):
+    """Image rows ``[first, stop)`` of :func:`_lattice_lowpass`: the y pass of ``along_x`` and the
+    division (``weight_x`` (W,) float32: the range's scratch for the mask's blur along x)."""
     rows = along_x.shape[0]
     width, channels = out.shape[1], out.shape[2]
     radius = taps.shape[0] // 2
-    weight_x = np.zeros(width, np.float32)
+    weight_x[:] = 0.0
     for x in range(width):
         lo, hi = _first_last_sample(x, radius, offset_x, stride_x, cols)
         for j in range(lo, hi + 1):
@@ -110,7 +113,7 @@ def _lattice_lowpass(lattice, offset_y, stride_y, offset_x, stride_x, taps, thre
     along_x = np.zeros((rows, out.shape[1] * channels), np.float32)
     run_parts(_lattice_lowpass_x, rows, lattice, offset_x, stride_x, taps, along_x)
     run_parts(_lattice_lowpass_y, out.shape[0], along_x, cols, offset_y, stride_y, offset_x, stride_x, taps,
-              threshold, out)
+              threshold, out, scratch=lambda: (np.empty(out.shape[1], np.float32),))
     return out
 
 

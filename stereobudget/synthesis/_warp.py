@@ -13,6 +13,7 @@ import math
 import numpy as np
 from numba import njit
 
+from .._kernels._jit import RANGE_KERNEL
 from .._kernels._parallel import run_parts
 
 from ..cost._cost import to_float_image
@@ -32,8 +33,8 @@ DEFAULT_Z_TOLERANCE = 1.0
 _MIN_SPLAT_WEIGHT = 1e-3
 
 
-@njit(cache=True, nogil=True)
-def _warp_splat(left, disparity, z_tolerance, min_weight, out, weight, first, stop):
+@njit(cache=True, **RANGE_KERNEL)
+def _warp_splat(left, disparity, z_tolerance, min_weight, out, weight, covering, reaching, first, stop):
     """Rows ``[first, stop)`` of a sub-pixel forward splat, row by row (rows are independent: the warp is horizontal).
 
     Pass 1 decides which surface each right pixel shows: the largest disparity among the
@@ -43,12 +44,12 @@ def _warp_splat(left, disparity, z_tolerance, min_weight, out, weight, first, st
     weight-0.4 splat claim a pixel would widen every foreground object by one pixel on
     each side.  Pass 2 accumulates only the splats within ``z_tolerance`` of that
     disparity, so a surface blends with itself (linear interpolation along the row) but
-    never with what lies behind it.
+    never with what lies behind it.  ``covering`` and ``reaching`` (W,) float32 are scratch.
     """
     w, n_ch = left.shape[1], left.shape[2]
     for y in range(first, stop):
-        covering = np.full(w, -np.inf, dtype=np.float32)
-        reaching = np.full(w, -np.inf, dtype=np.float32)
+        covering[:] = -np.inf
+        reaching[:] = -np.inf
         for x in range(w):
             d = disparity[y, x]
             if not np.isfinite(d):
@@ -121,8 +122,8 @@ def _cover(y, x_from, x_to, left, xa, xb, value_a, value_b, depth_a, depth_b, z_
             weight[y, p] += 1
 
 
-@njit(cache=True, nogil=True)
-def _warp_linear(left, disparity, z_tolerance, out, weight, first, stop):
+@njit(cache=True, **RANGE_KERNEL)
+def _warp_linear(left, disparity, z_tolerance, out, weight, nearest, first, stop):
     """Rows ``[first, stop)`` of a forward warp of each row as a piecewise-linear curve (a 1-D mesh warp).
 
     Two horizontally adjacent left pixels whose disparities differ by at most
@@ -132,11 +133,11 @@ def _warp_linear(left, disparity, z_tolerance, out, weight, first, stop):
     pixel covers half a pixel on that side, like its own footprint ``[x - 1/2, x + 1/2]``.
     The covered intervals are half-open, so each surface covers each right pixel once;
     different surfaces meet in a z-buffer (pass 1: largest disparity; pass 2: average of
-    the surfaces within ``z_tolerance`` of it).
+    the surfaces within ``z_tolerance`` of it).  ``nearest`` (W,) float32 is scratch.
     """
     w = left.shape[1]
     for y in range(first, stop):
-        nearest = np.full(w, -np.inf, dtype=np.float32)
+        nearest[:] = -np.inf
         for accumulate in (False, True):
             for x in range(w):
                 d = disparity[y, x]
@@ -169,7 +170,7 @@ def _warp_linear(left, disparity, z_tolerance, out, weight, first, stop):
                     out[y, x, c] *= inv
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, **RANGE_KERNEL)
 def _warp_nearest(left, disparity, out, depth, first, stop):
     """Rows ``[first, stop)``: each left pixel lands on the right pixel nearest to ``x - d``; the largest d wins."""
     w, n_ch = left.shape[1], left.shape[2]
@@ -264,11 +265,13 @@ def warp_left_to_right(left: np.ndarray, disparity: np.ndarray, *, mode: str = D
     out = np.zeros((h, w, c), np.float32)
     if mode == "linear":
         weight = np.zeros((h, w), np.float32)
-        run_parts(_warp_linear, h, img, disp, np.float32(z_tolerance), out, weight)
+        run_parts(_warp_linear, h, img, disp, np.float32(z_tolerance), out, weight,
+                  scratch=lambda: (np.empty(w, np.float32),))
         holes = weight <= 0
     elif mode == "splat":
         weight = np.zeros((h, w), np.float32)
-        run_parts(_warp_splat, h, img, disp, np.float32(z_tolerance), np.float32(_MIN_SPLAT_WEIGHT), out, weight)
+        run_parts(_warp_splat, h, img, disp, np.float32(z_tolerance), np.float32(_MIN_SPLAT_WEIGHT), out, weight,
+                  scratch=lambda: (np.empty(w, np.float32), np.empty(w, np.float32)))
         holes = weight <= 0
     else:
         depth = np.full((h, w), -np.inf, np.float32)
