@@ -33,6 +33,9 @@ def _run(command: str):
         _ignore_interrupts(command)
         sys.stderr.write(f"sb-{command}: interrupted\n")
         code = EXIT_INTERRUPTED
+    kernels = sys.modules.get("stereobudget._kernels._parallel")
+    if kernels is not None:
+        kernels.stop_workers()      # idle threads of the kernels' pool: nothing to join for
     if not _is_console_script(command) or threading.active_count() > 1:
         sys.exit(code)      # embedded, or threads to join: the interpreter's normal exit
     _exit_without_teardown(code)

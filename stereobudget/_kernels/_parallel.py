@@ -44,6 +44,17 @@ def _workers(count: int) -> ThreadPoolExecutor:
         return _pool
 
 
+def stop_workers() -> None:
+    """Stop the pool's threads (idle between calls) and forget the pool; the next
+    :func:`run_parts` starts another.  For a command about to exit: with no thread left
+    but its own it can skip the interpreter's teardown."""
+    global _pool
+    with _pool_lock:
+        pool, _pool = _pool, None
+    if pool is not None and _pool_pid == os.getpid():
+        pool.shutdown(wait=True)
+
+
 def part_bounds(count: int, parts: int) -> list:
     """The ``parts + 1`` bounds of ``count`` items split into contiguous ranges as evenly as
     possible (numba's static schedule): part ``t`` is ``[bounds[t], bounds[t + 1])``."""

@@ -771,8 +771,8 @@ def build_trees(guides, *, sigma: float = 0.1 * 255, median_size: int = 3) -> li
     """:func:`build_tree` for several guides at once, each with its :func:`tree_layout` made.
 
     The tree kernel is serial, so with two or more numba threads two guides are built
-    concurrently, one per thread of numba's pool (a decode that checks the left view
-    against the right builds both trees in the time of one).
+    concurrently, one per thread (:func:`stereobudget._kernels.run_parts`; a decode that
+    checks the left view against the right builds both trees in the time of one).
 
     Parameters
     ----------

@@ -112,8 +112,7 @@ class DenseTerms(NamedTuple):
 
 class FillMix(NamedTuple):
     """Hybrid's mean of the fill sliced from its grids and the dense cost.  The grids themselves
-    travel as an argument of their own (None: the dense cost alone): numba's parallel loops cannot
-    unpack a tuple nested in a tuple."""
+    travel as an argument of their own (None: the dense cost alone), not nested in this tuple."""
 
     guide: np.ndarray        # float32 (H, W), gray I1; (1, 1) without grids
     grid_weight: np.float32
@@ -123,10 +122,10 @@ class FillMix(NamedTuple):
 @njit(cache=True, error_model="numpy", **NO_REFCOUNTS)
 def _pair_item(first_row, last_row, pair, min_disp, terms, grids, mix, left_row_of_pixel, right_row_of_pixel,
                left_rows, right_rows, buffer, rev, dense, den, corner_index, band_index, corner_weight, starts):
-    """Image rows ``[first_row, last_row)`` of :func:`_pair_rows`, on one work item's scratch.
+    """Image rows ``[first_row, last_row)`` of :func:`_pair_rows`, on one range's scratch.
 
-    A kernel of its own, not inlined into the parallel loop: numba's parallel passes then see
-    one call, not the inlined fill and costs, and the pair kernels compile in a fraction of the time.
+    A kernel of its own without reference counts, called by the range kernel: the inlined
+    fill and costs compile once, not again inside every caller.
     """
     left, right, left_gray, right_gray = pair
     truncation, grad_truncation, grad_weight = terms

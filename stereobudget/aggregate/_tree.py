@@ -629,7 +629,7 @@ def aggregate_two_rows_winners(first: np.ndarray, first_layout: TreeLayout, seco
     """:func:`aggregate_rows_winners` for two independent volumes, each walked on one thread.
 
     Two views' volumes on their own trees (Yang's left-right check) do not depend on each
-    other, so each gets the serial walk on one of numba's threads, instead of one after
+    other, so each gets the serial walk on a thread of its own, instead of one after
     the other with each split between two threads: on two cores the split walks share
     the cores and the memory bandwidth anyway, and pay the split's bookkeeping (Teddy's
     pair inside a Hybrid decode: 32 -> 27 ms, scripts/bench.py).  The serial walk

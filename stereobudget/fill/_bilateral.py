@@ -98,7 +98,7 @@ def _splat_cost(values_flat, band_flat, offsets, band_offsets, weights, layer, c
 
 class GridScales(NamedTuple):
     """The grid's scales, as the splat kernels take them beside Eq. (2)'s terms (:class:`stereobudget.cost.SparseTerms`:
-    two flat records, since numba's parallel loops take no record nested in another)."""
+    two flat records, not one nested in another)."""
 
     inv_cs: float       # grid cells per pixel
     inv_cr: float       # grid cells per gray level

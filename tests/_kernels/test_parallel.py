@@ -11,6 +11,7 @@ import pytest
 from numba import njit
 
 from stereobudget._kernels import fill_zero, part_bounds, run_parts, take
+from stereobudget._kernels._parallel import stop_workers
 from stereobudget.cost import float_and_gray, to_float_image, to_gray
 from stereobudget.aggregate._refine import _stable_levels
 from stereobudget.aggregate._mst import _uint16_keys
@@ -69,6 +70,15 @@ def test_run_parts_raises_a_parts_error_after_every_part_has_finished():
     with pytest.raises(ValueError, match="bad part"):
         run_parts(part, 4, parts=2)
     assert finished == [0]
+
+
+def test_stop_workers_leaves_no_pool_thread_and_the_next_call_starts_again():
+    visits = np.zeros(6, np.int64)
+    run_parts(_count_visits, 6, visits, parts=2)
+    stop_workers()
+    assert not [t for t in threading.enumerate() if t.name.startswith("stereobudget")]
+    run_parts(_count_visits, 6, visits, parts=2)
+    np.testing.assert_array_equal(visits, np.full(6, 2))
 
 
 @pytest.mark.skipif(not hasattr(os, "fork") or sys.platform == "darwin", reason="needs fork")
