@@ -3,7 +3,7 @@
 Every kernel is ``njit(cache=True)``: numba compiles it on first use and keeps the
 machine code in a cache (``__pycache__`` beside the module, or ``$NUMBA_CACHE_DIR``),
 checked against the module's source file.  After an install or an upgrade the cache is
-empty and the first decode of each method spends minutes compiling.  Two notices say so:
+empty and the first decode of each method spends seconds compiling (docs/performance.md).  Two notices say so:
 
 * :func:`kernels_cached` looks at the cache index of the kernels the decoders use, so the
   command line can say so before it starts (:func:`announce_first_compile`);
@@ -28,13 +28,13 @@ log = logging.getLogger("stereobudget")
 PROBE_MODULES = ("stereobudget.aggregate._tree", "stereobudget.aggregate._semiglobal", "stereobudget.cost._census")
 #: Wall time of the first Hybrid ``sb-decode`` (with the range estimate, one 8-bit RGB
 #: 640x480 pair) from an empty NUMBA_CACHE_DIR on the project's 2-core machine, idle: a median of
-#: 23 s, with a second process compiling the decode's later kernels (``stereobudget.warm.start_hybrid_tail``;
+#: 11.3 s, with a second process compiling the decode's later kernels (``stereobudget.warm.start_hybrid_tail``;
 #: longer on a busy machine).
-COMPILE_SECONDS = 23
+COMPILE_SECONDS = 11
 #: Wall time of each method's first decode on one core (8-bit RGB, 640x480, ``--max-disp 64``)
 #: on the project's 2-core machine, idle, one after another from an empty cache in this order (a
 #: later method reuses the kernels an earlier one compiled): see docs/performance.md.
-METHOD_COMPILE_SECONDS = {"hybrid": 70, "sparse": 20, "downsample": 30, "full": 12, "range": 3}
+METHOD_COMPILE_SECONDS = {"hybrid": 22, "sparse": 11, "downsample": 12, "full": 5, "range": 3}
 WARM_COMMAND = "python -m stereobudget.warm"
 
 _announced = threading.Event()

@@ -6,8 +6,8 @@ splits the items into :func:`numba.get_num_threads` contiguous ranges, numba's o
 static schedule, and runs them at once on a small pool of threads, the calling thread
 taking the first.  numba's ``parallel=True`` does the same in compiled code, but its
 parfor passes doubled the compiling of a default decode: one process compiled the
-decode and its recovered right image in 39.8 s with them and in 19.5 s without.  The
-kernels' results do not depend on the split.
+decode and its recovered right image in 36.6-41.8 s with them and in 20.4-23.9 s
+without.  The kernels' results do not depend on the split.
 
 :func:`fill_zero` and :func:`take` are numpy one-liners that run between the decoders'
 kernels, split the same way (numpy runs them on one thread).  Their results equal
