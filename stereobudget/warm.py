@@ -111,7 +111,7 @@ def warm_hybrid_tail(*, kinds=KINDS) -> float:
     whose fill is random; last the check against the samples and the recovered right
     image.  Run in a second process beside a first decode, which meanwhile compiles the
     range estimate, the low-pass, the splat and the fill's slice, it has the rest in the
-    cache by the time that decode reaches it.  The slice (10 s of compiling) is left to
+    cache by the time that decode reaches it.  The slice (7 s of compiling) is left to
     the decode: compiled here first, it was not ready in time, and the decode compiled it
     as well.
     """
@@ -209,7 +209,7 @@ def main(argv=None) -> int:
     if unknown:
         parser.error(f"unknown method(s) {', '.join(unknown)}; expected {', '.join(METHODS)}")
     logging.basicConfig(format="%(message)s", stream=sys.stderr)
-    print(f"compiling the kernels of {', '.join(methods)} unless cached (about a minute once after an install, "
+    print(f"compiling the kernels of {', '.join(methods)} unless cached (about 35 s once after an install, "
           f"{max(1, args.jobs)} process(es))", file=sys.stderr, flush=True)
     seconds = warm(methods, jobs=args.jobs, kinds=kinds,
                    report=lambda text: print(text, file=sys.stderr, flush=True))
