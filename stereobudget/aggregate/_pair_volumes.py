@@ -31,7 +31,7 @@ from numba import njit
 
 from .._kernels._prefetch import prefetch_row
 from .._kernels._simd import LANES, skewed_block_copy
-from ..fill._grid import SliceGrids, slice_pixel, slice_scratch
+from ..fill._grid import SliceGrids, _slice_scratch, slice_pixel
 from ..cost._cost import dense_pixel_costs, gradient_sources, reversed_right_row
 from .._kernels._jit import NO_REFCOUNTS, RANGE_KERNEL
 from .._kernels._parallel import run_parts
@@ -195,7 +195,7 @@ def _pair_scratch(width, channels, min_disp, num_disp, right_view):
     span = width + num_disp - 1  # columns -(min_disp + num_disp - 1) .. w - 1 - min_disp of the right image
     return (np.empty((width + border_rows, num_disp), dtype=np.float32),
             np.empty((channels + 1, span), dtype=np.float32), np.empty(num_disp, dtype=np.float32),
-            *slice_scratch(num_disp), np.empty(LANES, dtype=np.int64))
+            *_slice_scratch(num_disp), np.empty(LANES, dtype=np.int64))
 
 
 def pair_cost_rows(left: np.ndarray, right: np.ndarray, *, min_disp: int, num_disp: int, truncation: float,

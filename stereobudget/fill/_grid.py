@@ -433,10 +433,15 @@ def _tile_into(period, out, n):
         filled += count
 
 
-def slice_scratch(num_layers):
+def _slice_scratch(num_layers):
     """Scratch of :func:`slice_pixel` for ``num_layers`` layers: (den, corner_index, band_index, corner_weight)."""
     return (np.empty(num_layers + MAX_PERIOD_LANES, dtype=np.float32), np.empty(8, dtype=np.int64),
             np.empty(8, dtype=np.int64), np.empty(8, dtype=np.float32))
+
+
+#: :func:`_slice_scratch` for a caller's own kernel as well (the range kernels take the
+#: plain function's arrays from ``run_parts``: no dispatcher to load).
+slice_scratch = njit(cache=True, inline="always")(_slice_scratch)
 
 
 @njit(cache=True, inline="always")
@@ -529,7 +534,7 @@ def slice_volume(guide: np.ndarray, grids: SliceGrids, *, pixel_of_row: np.ndarr
     h, w = guide.shape
     out = empty_volume((h * w, grids.values.shape[1]))
     run_parts(_slice_rows, h * w, grids, guide, _pixels_of_rows(pixel_of_row, h * w), out,
-              scratch=lambda: slice_scratch(out.shape[1]))
+              scratch=lambda: _slice_scratch(out.shape[1]))
     return out if pixel_of_row is not None else out.reshape(h, w, -1)
 
 
