@@ -223,8 +223,9 @@ def teddy_benchmark(data_dir: Path, *, repeats: int, methods=("sparse", "hybrid"
             wall[method].append(time.perf_counter() - t)
             cpu[method].append(time.process_time() - c)
             stages[method].append(result.timings)
-            # numba's OpenMP workers spin for a few ms after a parallel kernel; SGBM is timed
-            # once they sleep, as it runs on its own (it would be ~25 % slower among them).
+            # SGBM is timed after a pause, as it runs on its own: numba's OpenMP workers, which
+            # ran the kernels before the thread pool, spun for a few ms after each (SGBM ~25 %
+            # slower among them); the pause keeps the comparison the same.
             time.sleep(0.05)
             # But after the pause the idle vCPUs must be woken, which a VM's host may take
             # its time over: the first call pays for it (a Firecracker guest, 2026-12-03: in
@@ -309,7 +310,7 @@ def teddy_report(r: dict) -> list[str]:
     lines.append("")
     lines.append("The right-image rows are not part of the decode total: `sb-decode` runs them only with "
                  "`--right`.  Each method's decodes run in a block of their own: two decodes in a row, "
-                 "then SGBM after a 50 ms pause (numba's OpenMP workers stop spinning), called twice; the "
+                 "then SGBM after a 50 ms pause (idle worker threads asleep), called twice; the "
                  "ratios take the second call of each (a first call after the other's work also pays for "
                  "caches and idle cores).  A process decoding a "
                  "series of frames reuses the previous decode's volumes (`stereobudget._kernels._scratch`).  The "
