@@ -3,7 +3,8 @@
 Every kernel is ``njit(cache=True)``: numba compiles it on first use and keeps the
 machine code in a cache (``__pycache__`` beside the module, or ``$NUMBA_CACHE_DIR``),
 checked against the module's source file.  After an install or an upgrade the cache is
-empty and the first decode of each method spends seconds compiling (docs/performance.md).  Two notices say so:
+empty and the first decode of each method spends seconds compiling (docs/performance.md).
+Two notices say so:
 
 * :func:`kernels_cached` looks at the cache index of the kernels the decoders use, so the
   command line can say so before it starts (:func:`announce_first_compile`);

@@ -28,19 +28,20 @@ from ._jit import RANGE_KERNEL
 
 _pool_lock = threading.Lock()
 _pool: ThreadPoolExecutor | None = None
+_pool_size = 0
 _pool_pid = 0
 
 
 def _workers(count: int) -> ThreadPoolExecutor:
     """The process's pool of at least ``count`` threads (made again in a forked child,
     whose copy of the pool has no threads behind it)."""
-    global _pool, _pool_pid
+    global _pool, _pool_size, _pool_pid
     with _pool_lock:
-        if _pool is None or _pool_pid != os.getpid() or _pool._max_workers < count:
+        if _pool is None or _pool_pid != os.getpid() or _pool_size < count:
             if _pool is not None and _pool_pid == os.getpid():
                 _pool.shutdown(wait=False)
             _pool = ThreadPoolExecutor(max_workers=count, thread_name_prefix="stereobudget")
-            _pool_pid = os.getpid()
+            _pool_size, _pool_pid = count, os.getpid()
         return _pool
 
 

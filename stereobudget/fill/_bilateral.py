@@ -266,10 +266,12 @@ def _splat_lattice_rows(r_lo, r_hi, cell_lo, cell_hi, lattice, samples, pixels, 
 
 
 @njit(cache=True, **RANGE_KERNEL)
-def _splat_lattice_own(lattice, samples, pixels, min_disp, cost_terms, scales, grids, part_rows, shared_cells,
-                       zero_cells, weights, offsets, band_offsets, first, stop):
-    """Parts ``[first, stop)`` of :func:`_splat_lattice`'s first pass: each zeroes its rows of
-    cells, then splats its sample rows into the cells below the reach of the part above."""
+def _splat_lattice_pass(lattice, samples, pixels, min_disp, cost_terms, scales, grids, part_rows, shared_cells,
+                        zero_cells, shared, weights, offsets, band_offsets, first, stop):
+    """Parts ``[first, stop)`` of one pass of :func:`_splat_lattice`.  The first pass
+    (``shared`` False): each part zeroes its rows of cells, then splats its sample rows into
+    the cells below the reach of the part above.  The second: the cells each part shares
+    with the part above."""
     grid_val, band_w, base_w, _ = grids
     gy_n = grid_val.shape[0]
     val_row = grid_val.size // gy_n
@@ -279,6 +281,12 @@ def _splat_lattice_own(lattice, samples, pixels, min_disp, cost_terms, scales, g
     band_flat = band_w.reshape(band_w.size)
     base_flat = base_w.reshape(base_w.size)
     for p in range(first, stop):
+        if shared:
+            if shared_cells[p] >= 0:
+                # np.int64(0), not 0: a literal would compile the rows' kernel a second time.
+                _splat_lattice_rows(part_rows[p], part_rows[p + 1], np.int64(0), shared_cells[p], lattice, samples,
+                                    pixels, min_disp, cost_terms, scales, grids, weights, offsets, band_offsets)
+            continue
         lo, hi = zero_cells[p], zero_cells[p + 1]
         values_flat[lo * val_row:hi * val_row] = 0.0
         band_flat[lo * band_row:hi * band_row] = 0.0
@@ -286,17 +294,6 @@ def _splat_lattice_own(lattice, samples, pixels, min_disp, cost_terms, scales, g
         # Cells up to the last one the part above reaches (shared_cells[p]) wait for the second pass.
         _splat_lattice_rows(part_rows[p], part_rows[p + 1], shared_cells[p] + 1, gy_n, lattice, samples, pixels,
                             min_disp, cost_terms, scales, grids, weights, offsets, band_offsets)
-
-
-@njit(cache=True, **RANGE_KERNEL)
-def _splat_lattice_shared(lattice, samples, pixels, min_disp, cost_terms, scales, grids, part_rows, shared_cells,
-                          weights, offsets, band_offsets, first, stop):
-    """Parts ``[first, stop)`` of :func:`_splat_lattice`'s second pass: the cells each shares with the part above."""
-    for p in range(first, stop):
-        if shared_cells[p] >= 0:
-            # np.int64(0), not 0: a literal would compile the rows' kernel a second time.
-            _splat_lattice_rows(part_rows[p], part_rows[p + 1], np.int64(0), shared_cells[p], lattice, samples,
-                                pixels, min_disp, cost_terms, scales, grids, weights, offsets, band_offsets)
 
 
 def _splat_lattice(lattice, samples, pixels, min_disp, cost_terms, scales, grids, part_rows, shared_cells,
@@ -318,9 +315,9 @@ def _splat_lattice(lattice, samples, pixels, min_disp, cost_terms, scales, grids
     three grids took 0.8 ms of a Teddy decode).
     """
     parts = part_rows.shape[0] - 1
-    common = (lattice, samples, pixels, min_disp, cost_terms, scales, grids, part_rows, shared_cells)
-    run_parts(_splat_lattice_own, parts, *common, zero_cells, parts=parts, scratch=_corner_scratch)
-    run_parts(_splat_lattice_shared, parts, *common, parts=parts, scratch=_corner_scratch)
+    for shared in (False, True):
+        run_parts(_splat_lattice_pass, parts, lattice, samples, pixels, min_disp, cost_terms, scales, grids,
+                  part_rows, shared_cells, zero_cells, shared, parts=parts, scratch=_corner_scratch)
 
 
 def _corner_scratch(channels=0):
@@ -400,21 +397,16 @@ def _splat_sample_rows(r_lo, r_hi, cell_lo, cell_hi, sample_rows, samples, pixel
 
 
 @njit(cache=True, **RANGE_KERNEL)
-def _splat_rows_own(sample_rows, samples, pixels, min_disp, cost_terms, scales, grid_val, grid_w, part_rows,
-                    shared_cells, weights, offsets, band_offsets, at, first, stop):
-    """Parts ``[first, stop)`` of :func:`_splat_rows`' first pass (the cells below the part above's reach)."""
-    gy_n = grid_val.shape[0]
+def _splat_rows_pass(sample_rows, samples, pixels, min_disp, cost_terms, scales, grid_val, grid_w, part_rows,
+                     shared_cells, shared, weights, offsets, band_offsets, at, first, stop):
+    """Parts ``[first, stop)`` of one pass of :func:`_splat_rows`: the cells below the part
+    above's reach (``shared`` False), then the cells shared with it."""
     for p in range(first, stop):
-        _splat_sample_rows(part_rows[p], part_rows[p + 1], shared_cells[p] + 1, gy_n, sample_rows, samples, pixels,
-                           min_disp, cost_terms, scales, grid_val, grid_w, weights, offsets, band_offsets, at)
-
-
-@njit(cache=True, **RANGE_KERNEL)
-def _splat_rows_shared(sample_rows, samples, pixels, min_disp, cost_terms, scales, grid_val, grid_w, part_rows,
-                       shared_cells, weights, offsets, band_offsets, at, first, stop):
-    """Parts ``[first, stop)`` of :func:`_splat_rows`' second pass (the cells shared with the part above)."""
-    for p in range(first, stop):
-        if shared_cells[p] >= 0:
+        if not shared:
+            _splat_sample_rows(part_rows[p], part_rows[p + 1], shared_cells[p] + 1, grid_val.shape[0], sample_rows,
+                               samples, pixels, min_disp, cost_terms, scales, grid_val, grid_w, weights, offsets,
+                               band_offsets, at)
+        elif shared_cells[p] >= 0:
             _splat_sample_rows(part_rows[p], part_rows[p + 1], np.int64(0), shared_cells[p], sample_rows, samples,
                                pixels, min_disp, cost_terms, scales, grid_val, grid_w, weights, offsets, band_offsets,
                                at)
@@ -426,10 +418,10 @@ def _splat_rows(sample_rows, samples, pixels, min_disp, cost_terms, scales, grid
     cut into parts as :func:`_splat_lattice` cuts them (and for the same reason: every sum
     keeps the order of one pass)."""
     parts = part_rows.shape[0] - 1
-    args = (sample_rows, samples, pixels, min_disp, cost_terms, scales, grid_val, grid_w, part_rows, shared_cells)
     channels = pixels.image.shape[2]
-    run_parts(_splat_rows_own, parts, *args, parts=parts, scratch=lambda: _corner_scratch(channels))
-    run_parts(_splat_rows_shared, parts, *args, parts=parts, scratch=lambda: _corner_scratch(channels))
+    for shared in (False, True):
+        run_parts(_splat_rows_pass, parts, sample_rows, samples, pixels, min_disp, cost_terms, scales, grid_val,
+                  grid_w, part_rows, shared_cells, shared, parts=parts, scratch=lambda: _corner_scratch(channels))
 
 
 def _lattice_parts(sample_rows: np.ndarray, inv_cs: float, gy: int, parts: int) -> tuple:

@@ -38,6 +38,7 @@ from .._kernels._simd import MAX_PERIOD_LANES, PERIOD_READ_PAST, periodic_corner
 from .._kernels._scratch import empty_volume, recycle, zeroed_volume
 from ._geometry import GridGeometry, grid_geometry
 
+
 def _gaussian_kernel(std: float) -> np.ndarray:
     radius = max(1, int(math.ceil(3.0 * std)))
     t = np.arange(-radius, radius + 1, dtype=np.float64)
@@ -116,8 +117,9 @@ def _seven_taps(out, rows, first, step, kernel):
 @njit(cache=True, **RANGE_KERNEL)
 def _blur_grid_rows(src, dst, spatial, kernel_s, kernel_r, slab, column, first, stop):
     """Grid rows ``[first, stop)`` of ``dst`` = ``src`` (GY, GX, GZ, K) blurred along y and x by
-    ``kernel_s``, then along z by ``kernel_r``, with zero boundaries (taps outside the grid are left out; each sum
-    starts from its first tap inside); ``spatial`` (GY, GX, K) = ``dst`` summed over
+    ``kernel_s``, then along z by ``kernel_r``, with zero boundaries (taps outside the grid
+    are left out; each sum starts from its first tap inside), on the range's scratch
+    ``slab`` and ``column``; ``spatial`` (GY, GX, K) = ``dst`` summed over
     intensity, the cells added in intensity order from the first (the slice's
     spatial-only fallback), while each column is in cache.
 
