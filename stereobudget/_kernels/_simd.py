@@ -19,6 +19,10 @@ vectors (no target-specific intrinsics; the results are the scalar loops', bit f
   element, they made the vector loads that read them wait.
 
 :func:`blend_rows_first_min` fuses the first with the downward pass of a tree walk.
+
+:func:`fixed_path_step` is one step of a semi-global path in 16-bit integers, sixteen
+layers at a time (OpenCV's representation): numba widens every small-integer operation
+to 64 bits, and the scalar form of the same step ran at half the float32 loop's speed.
 """
 
 from __future__ import annotations
@@ -447,5 +451,97 @@ def periodic_corner_sum(typingctx, rows, corner_index, corner_weight, count, tar
         for value, block in periods:
             result.add_incoming(value, block)
         return result
+
+    return signature, codegen
+
+
+#: Lanes of one 16-bit vector of :func:`fixed_path_step`.
+FIXED_LANES = 16
+
+
+def _fixed_cost_vector(builder, data, offset, scale, is_float):
+    """Cost elements [offset, offset + 16) as 16-bit path costs: ``uint16(cost * scale + 0.5)``,
+    each product and sum rounded to float32 (the scalar :func:`stereobudget.aggregate` quantisation)."""
+    f32 = ir.FloatType()
+    wide = ir.VectorType(f32, FIXED_LANES)
+    if is_float:
+        values = builder.load(builder.bitcast(builder.gep(data, [offset]), wide.as_pointer()), align=4)
+    else:
+        raw = builder.load(builder.bitcast(builder.gep(data, [offset]),
+                                           ir.VectorType(ir.IntType(8), FIXED_LANES).as_pointer()), align=1)
+        values = builder.uitofp(raw, wide)
+    half = ir.Constant(wide, [0.5] * FIXED_LANES)
+    scaled = builder.fadd(builder.fmul(values, _broadcast(builder, scale, wide)), half)
+    # Through signed 32 bits (one vector conversion; a direct unsigned 16-bit one is scalarised).
+    whole = builder.fptosi(scaled, ir.VectorType(ir.IntType(32), FIXED_LANES))
+    return builder.trunc(whole, ir.VectorType(ir.IntType(16), FIXED_LANES))
+
+
+@intrinsic
+def fixed_path_step(typingctx, cost, scale, previous, out, previous_min, p1, jump):
+    """The inner layers of one semi-global path step in 16-bit integers; returns their minimum.
+
+    For ``0 < d < D - 1`` (``D = len(cost) >= 18``, not checked)::
+
+        out[d] = c(d) + min(previous[d], min(previous[d - 1], previous[d + 1]) + p1, jump) - previous_min
+
+    with ``c(d) = uint16(cost[d] * scale + 0.5)`` (float32 arithmetic), every sum modulo
+    2**16: the caller keeps every value below that.  The layers go sixteen at a time, the
+    last vector overlapping the one before where ``D - 2`` is not a multiple of 16 (a layer
+    computed twice gets the same value).  ``cost`` is a C-contiguous float32 or uint8 row,
+    ``previous`` and ``out`` C-contiguous uint16 rows of its length; ``scale`` float32,
+    the rest uint16.  The first and last layers are the caller's.
+    """
+    if not (isinstance(cost, types.Array) and cost.ndim == 1 and cost.layout == "C"
+            and cost.dtype in (types.float32, types.uint8) and scale == types.float32
+            and _is_array(previous, 1, types.uint16) and _is_array(out, 1, types.uint16)
+            and previous_min == types.uint16 and p1 == types.uint16 and jump == types.uint16):
+        return None
+    signature = types.uint16(cost, scale, previous, out, previous_min, p1, jump)
+    is_float = cost.dtype == types.float32
+
+    def codegen(context, builder, sig, args):
+        i16, i32, i64 = ir.IntType(16), ir.IntType(32), ir.IntType(64)
+        vector = ir.VectorType(i16, FIXED_LANES)
+        cost_view = context.make_array(sig.args[0])(context, builder, args[0])
+        previous_view = context.make_array(sig.args[2])(context, builder, args[2])
+        out_view = context.make_array(sig.args[3])(context, builder, args[3])
+        length = cgutils.unpack_tuple(builder, cost_view.shape, 1)[0]
+        cost_data = builder.bitcast(cost_view.data, (ir.FloatType() if is_float else ir.IntType(8)).as_pointer())
+        previous_data = builder.bitcast(previous_view.data, i16.as_pointer())
+        out_data = builder.bitcast(out_view.data, i16.as_pointer())
+        previous_min, p1, jump = (_broadcast(builder, value, vector) for value in args[4:7])
+        one = ir.Constant(i64, 1)
+
+        def unsigned_min(a, b):
+            return builder.select(builder.icmp_unsigned("<", a, b), a, b)
+
+        def load(offset):
+            return builder.load(builder.bitcast(builder.gep(previous_data, [offset]), vector.as_pointer()), align=2)
+
+        def step(offset, smallest):
+            neighbours = unsigned_min(load(builder.sub(offset, one)), load(builder.add(offset, one)))
+            best = unsigned_min(unsigned_min(load(offset), builder.add(neighbours, p1)), jump)
+            value = builder.sub(builder.add(_fixed_cost_vector(builder, cost_data, offset, args[1], is_float), best),
+                                previous_min)
+            builder.store(value, builder.bitcast(builder.gep(out_data, [offset]), vector.as_pointer()), align=2)
+            return unsigned_min(smallest, value)
+
+        lanes = ir.Constant(i64, FIXED_LANES)
+        inner = builder.sub(length, ir.Constant(i64, 2))
+        whole = builder.sdiv(inner, lanes)
+        smallest = ir.Constant(vector, [0xFFFF] * FIXED_LANES)
+        smallest, = _counted_loop(builder, "fixed.step", ir.Constant(i64, 0), whole, (smallest,),
+                                  lambda k, smallest: (step(builder.add(builder.mul(k, lanes), one), smallest),))
+        # The last inner vector ends at layer D - 2; where the whole ones stopped short of
+        # it, it overlaps them.
+        smallest = step(builder.sub(length, ir.Constant(i64, FIXED_LANES + 1)), smallest)
+        width = FIXED_LANES
+        while width > 1:  # halve the lanes: 16 -> 8 -> 4 -> 2 -> 1
+            width //= 2
+            upper = ir.Constant(ir.VectorType(i32, FIXED_LANES),
+                                [width + k if k < width else k for k in range(FIXED_LANES)])
+            smallest = unsigned_min(smallest, builder.shuffle_vector(smallest, smallest, upper))
+        return builder.extract_element(smallest, ir.Constant(i32, 0))
 
     return signature, codegen

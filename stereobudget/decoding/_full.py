@@ -87,7 +87,8 @@ def census_semiglobal_disparity(left_f, right_f, *, tree_guide, min_disp, num_di
                                 p2=params.sgm_p2 * margin, params=params, timer=timer)
 
 
-def semiglobal_disparity(cost, guide, *, min_disp, p1, p2, params, timer, samples=None, paths=None):
+def semiglobal_disparity(cost, guide, *, min_disp, p1, p2, params, timer, samples=None, paths=None,
+                         cost_max=None):
     """Semi-global paths, diagonal left-right check, row fill of rejected pixels, the
     plane refinement (``params.plane_refinement``), median.
 
@@ -110,6 +111,8 @@ def semiglobal_disparity(cost, guide, *, min_disp, p1, p2, params, timer, sample
         The samples the plane refinement checks its planes against.
     paths : {4, 8}, optional
         Semi-global paths (default: ``params.sgm_paths``).
+    cost_max : float, optional
+        A bound on the costs (:func:`stereobudget.aggregate.semiglobal_aggregate`).
 
     Returns
     -------
@@ -120,7 +123,8 @@ def semiglobal_disparity(cost, guide, *, min_disp, p1, p2, params, timer, sample
         # The winners are taken row by row as the last pass completes each row's sum.
         disp_left, disp_right = semiglobal_disparities(cost, guide, min_disp=int(min_disp), p1=p1, p2=p2,
                                                        edge_scale=params.sgm_edge_scale,
-                                                       paths=params.sgm_paths if paths is None else paths)
+                                                       paths=params.sgm_paths if paths is None else paths,
+                                                       cost_max=cost_max)
         del cost
     with timer("refine"):
         stable = left_right_stable(disp_left, disp_right, np.float32(1.0))

@@ -133,6 +133,9 @@ def census_semiglobal_tail(cost, guide, samples, left_lp, right_lp, *, min_disp,
         mix_spaced_census(cost, left_codes, right_codes, min_disp=int(min_disp),
                           volume_scale=weight / params.truncation, census_weight=(1.0 - weight) / 8.0)
         margin = typical_margin(cost, floor=0.0)
+    # The fill is a weighted mean of sample costs in [0, truncation] (truncation where it has
+    # none), and the census has 8 bits: the mix is at most |weight| + |1 - weight|.
     return semiglobal_disparity(cost, guide, min_disp=min_disp, p1=params.sgm_p1 * margin,
                                 p2=params.hybrid_sgm_p2 * margin, params=params, timer=timer,
-                                samples=samples, paths=params.hybrid_sgm_paths)
+                                samples=samples, paths=params.hybrid_sgm_paths,
+                                cost_max=abs(weight) + abs(1.0 - weight))

@@ -50,8 +50,8 @@ def estimate_decode_memory(height: int, width: int, num_disp: int, method: str, 
     method            at most alive at once
     ================  ================================
     ``sparse``        ``max(3 G, 2 G + V)``
-    ``hybrid``        ``max(3 G, 2 G + 3 V)``
-    ``full``          ``2 V + V / 4``
+    ``hybrid``        ``max(3 G, 2 G + 2 V)``
+    ``full``          ``V + V / 4``
     ``downsample``    ``2 V``
     ================  ================================
 

@@ -56,9 +56,10 @@ class MethodRecord:
 METHOD_RECORDS = {record.name: record for record in (
     MethodRecord("hybrid", "the Sparse fill mixed with a dense cost of the low-passed pair (paper Fig. 2c)",
                  patterns="points", tiled=True, fill_grids=True, noise="sparse",
-                 # grid blur; or the cost and the two semi-global sums while the sliced grids
-                 # wait in the spare pool for the next decode (the tree route needs 2 G + 2 V)
-                 peak=lambda volume, grid: max(3 * grid, 2 * grid + 3 * volume)),
+                 # grid blur; or the cost and the two uint16 semi-global sums (half a volume
+                 # each) while the sliced grids wait in the spare pool for the next decode
+                 # (the tree route needs as much: 2 G + 2 V)
+                 peak=lambda volume, grid: max(3 * grid, 2 * grid + 2 * volume)),
     MethodRecord("sparse", "Eq. 2 at the samples, filled by the joint bilateral filter (paper Fig. 2b)",
                  patterns="points", tiled=True, fill_grids=True, noise="sparse",
                  # grid blur; or the grids and the sliced volume
@@ -69,8 +70,8 @@ METHOD_RECORDS = {record.name: record for record in (
                  peak=lambda volume, grid: 2 * volume),
     MethodRecord("full", "the whole right image: census and semi-global paths (or Eq. 1 on the tree)",
                  patterns="full", tiled=True, fill_grids=False, noise="dense",
-                 # the uint8 census volume and the two float32 sums of the semi-global paths
-                 peak=lambda volume, grid: 2 * volume + volume // 4),
+                 # the uint8 census volume and the two uint16 sums of the semi-global paths
+                 peak=lambda volume, grid: volume + volume // 4),
 )}
 
 #: The decoders :func:`stereobudget.decode` accepts (paper Fig. 2, plus the full pair).

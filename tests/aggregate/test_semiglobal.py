@@ -3,19 +3,77 @@
 import numpy as np
 import pytest
 
-from stereobudget.aggregate import (semiglobal_aggregate, semiglobal_aggregate_reference, semiglobal_disparities,
-                                    semiglobal_winners)
+from stereobudget.aggregate import (fixed_point_scale, semiglobal_aggregate, semiglobal_aggregate_reference,
+                                    semiglobal_disparities, semiglobal_winners)
 
 
 @pytest.mark.parametrize("paths", [4, 8])
-def test_matches_reference(paths):
+@pytest.mark.parametrize("layers", [6, 17, 18, 21, 34, 64])
+@pytest.mark.parametrize("dtype", [np.uint8, np.float32])
+def test_matches_reference(paths, layers, dtype):
+    """Bit for bit, on the same fixed point: below 18 layers element by element, from 18 on
+    sixteen at a time with an overlapping last vector (34 = 2 + 2 * 16 does not overlap)."""
     rng = np.random.default_rng(5)
-    cost = rng.integers(0, 25, (9, 13, 6)).astype(np.uint8)
-    guide = rng.uniform(0, 255, (9, 13)).astype(np.float32)
-    fast = semiglobal_aggregate(cost, guide, p1=3.0, p2=20.0, edge_scale=8.0, paths=paths)
+    shape = (9, 13, layers)
+    if dtype == np.uint8:
+        cost, p1, p2 = rng.integers(0, 25, shape).astype(np.uint8), 3.0, 20.0
+    else:
+        cost, p1, p2 = rng.uniform(0, 1.5, shape).astype(np.float32), 0.15, 1.1
+    guide = rng.uniform(0, 255, shape[:2]).astype(np.float32)
+    fast = semiglobal_aggregate(cost, guide, p1=p1, p2=p2, edge_scale=8.0, paths=paths)
     assert fast.dtype == np.float32
-    reference = semiglobal_aggregate_reference(cost, guide, p1=3.0, p2=20.0, edge_scale=8.0, paths=paths)
-    np.testing.assert_allclose(fast, reference, rtol=1e-5, atol=1e-3)
+    reference = semiglobal_aggregate_reference(cost, guide, p1=p1, p2=p2, edge_scale=8.0, paths=paths)
+    np.testing.assert_array_equal(fast, reference)
+
+
+def test_fixed_point_keeps_integer_costs_and_fits_sixteen_bits():
+    assert fixed_point_scale(255, 40) == 16            # 16 * 295 <= 8190 < 32 * 295
+    assert fixed_point_scale(1.0, 7.0) == 512           # 512 * 8 <= 8190 < 1024 * 8
+    assert fixed_point_scale(0, 0) == 1
+    # The largest sum the scale admits: every cost at the bound, P2 at every step.
+    rng = np.random.default_rng(2)
+    cost = np.full((6, 40, 20), 1.0, np.float32)
+    cost[:, :, ::3] = 0.0
+    guide = rng.uniform(0, 255, (6, 40)).astype(np.float32)
+    fast = semiglobal_aggregate(cost, guide, p1=0.5, p2=6.0, cost_max=1.0)
+    np.testing.assert_array_equal(fast, semiglobal_aggregate_reference(cost, guide, p1=0.5, p2=6.0, cost_max=1.0))
+    assert fast.max() <= 8 * (1.0 + 6.0)
+
+
+def test_the_fixed_point_step_is_far_below_the_costs():
+    """On float costs the fixed point moves a sum by well under a cost unit: the same winners
+    as exact float64 path sums wherever those are not a near tie."""
+    rng = np.random.default_rng(9)
+    cost = rng.uniform(0, 1, (12, 30, 24)).astype(np.float32)
+    guide = rng.uniform(0, 255, (12, 30)).astype(np.float32)
+    fast = semiglobal_aggregate(cost, guide, p1=0.1, p2=1.5)
+    exact = _float_sums(cost, guide, p1=0.1, p2=1.5)
+    assert np.abs(fast - exact).max() < 8 * 30 / fixed_point_scale(1.0, 1.5)   # under a step per path and pixel
+    ordered = np.sort(exact, axis=2)
+    clear = ordered[:, :, 1] - ordered[:, :, 0] > 0.05
+    np.testing.assert_array_equal(fast.argmin(axis=2)[clear], exact.argmin(axis=2)[clear])
+
+
+def _float_sums(cost, guide, *, p1, p2, edge_scale=8.0):
+    """The eight paths' sums in float64, without fixed point."""
+    cost = cost.astype(np.float64)
+    h, w, nd = cost.shape
+    total = np.zeros_like(cost)
+    for dy, dx in [(0, 1), (0, -1), (1, 0), (-1, 0), (1, 1), (1, -1), (-1, -1), (-1, 1)]:
+        lr = np.zeros_like(cost)
+        for y in (range(h) if dy >= 0 else range(h - 1, -1, -1)):
+            for x in (range(w) if dx >= 0 else range(w - 1, -1, -1)):
+                py, px = y - dy, x - dx
+                if not (0 <= py < h and 0 <= px < w):
+                    lr[y, x] = cost[y, x]
+                    continue
+                prev = lr[py, px]
+                low = prev.min()
+                jump = max(p1, p2 / (1 + abs(float(guide[y, x]) - float(guide[py, px])) / edge_scale))
+                shifted = np.minimum(np.concatenate([[np.inf], prev[:-1]]), np.concatenate([prev[1:], [np.inf]]))
+                lr[y, x] = cost[y, x] + np.minimum(np.minimum(prev, shifted + p1), low + jump) - low
+        total += lr
+    return total
 
 
 def test_smoothness_overrules_a_lone_wrong_pixel():
@@ -58,7 +116,8 @@ def test_fill_from_row_takes_the_nearest_valid_pixel():
 
 @pytest.mark.parametrize("paths", [4, 8])
 @pytest.mark.parametrize("dtype", [np.uint8, np.float32])
-@pytest.mark.parametrize("min_disp, shape", [(2, (11, 23, 9)), (-3, (11, 23, 9)), (0, (5, 7, 12)), (-9, (4, 6, 5))])
+@pytest.mark.parametrize("min_disp, shape", [(2, (11, 23, 9)), (-3, (11, 23, 9)), (0, (5, 7, 12)), (-9, (4, 6, 5)),
+                                             (1, (6, 40, 37))])
 def test_fused_winners_match_the_two_steps(paths, dtype, min_disp, shape):
     """The fused route's right winners (a transposed row, every layer at once) against the
     diagonal walk, with negative ranges and more layers than columns; ties are frequent in

@@ -502,11 +502,12 @@ def test_estimate_counts_volumes_and_grids():
     v = 100 * 200 * 48 * 4
     pixels = 100 * 200
     full = estimate_decode_memory(100, 200, 48, "full")
-    assert full >= 2.25 * v                  # census volume + the two sums of the semi-global paths
-    assert 2 * v <= estimate_decode_memory(100, 200, 48, "downsample") < full
+    assert full >= 1.25 * v                  # uint8 census volume + the two uint16 sums of the semi-global paths
+    assert 2 * v <= estimate_decode_memory(100, 200, 48, "downsample")
+    assert full < estimate_decode_memory(100, 200, 48, "downsample")   # 1.25 V against 2 V
     sparse = estimate_decode_memory(100, 200, 48, "sparse", stride_x=5, stride_y=5)
     hybrid = estimate_decode_memory(100, 200, 48, "hybrid", stride_x=5, stride_y=5)
-    assert hybrid >= sparse and hybrid >= 3 * v
+    assert hybrid >= sparse and hybrid >= 2 * v
     # Smaller strides mean finer bilateral grids: more memory.
     assert estimate_decode_memory(100, 200, 48, "sparse", stride_x=2, stride_y=2) > sparse
     # Linear in the number of disparities (up to the per-pixel and fixed terms).
