@@ -138,3 +138,17 @@ def test_psnr_at_samples_is_high_for_the_truth_and_low_for_a_wrong_map(planes):
     assert good > 40 and bad < good - 15, (good, bad)
     assert math.isnan(psnr_at_samples(planes.left, planes.disparity,
                                       encode_image(planes.right, pattern=SamplingPattern("downsample", 4, 4))))
+
+
+@pytest.mark.parametrize("pattern", [GRID, SamplingPattern("jitter", 4, 4)])
+def test_psnr_at_samples_equals_the_whole_warp_read_at_the_samples(planes, pattern):
+    """The check warps only the rows that hold samples: the same PSNR as the whole image's warp."""
+    from stereobudget.synthesis import sample_arrays, warp_left_to_right
+    samples = encode_image(planes.right, pattern=pattern)
+    disparity = planes.disparity + np.random.default_rng(3).normal(0, 0.7, planes.disparity.shape)
+    rows, cols, values = sample_arrays(samples)
+    warped, holes = warp_left_to_right(planes.left, disparity)
+    reached = ~holes[rows, cols]
+    diff = warped[rows[reached], cols[reached]].astype(np.float64) - values[reached]
+    want = 10.0 * math.log10(255.0 ** 2 / float(np.mean(diff * diff)))
+    assert psnr_at_samples(planes.left, disparity, samples) == want
