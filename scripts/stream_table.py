@@ -209,7 +209,7 @@ def profile(width, height, max_disp, repeats):
     wrap(_hybrid, "gaussian_lowpass", "low-pass of I1")
     wrap(_hybrid, "spaced_census", "census codes")
     wrap(_hybrid, "mix_spaced_census", "census cost mixed in")
-    wrap(_hybrid, "typical_margin", "typical margin (numpy median)")
+    wrap(_hybrid, "typical_margin", "typical margin")
     wrap(_semiglobal, "_vertical_sums", "SGM vertical+diagonal paths")
     wrap(_semiglobal, "_horizontal_paths_winners", "SGM horizontal paths + winners + sub-pixel")
     wrap(_full, "left_right_stable", "LR check")

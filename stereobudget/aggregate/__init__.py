@@ -10,5 +10,5 @@ __getattr__, __dir__, __all__ = attach(__name__, {
     '_pair_volumes': ['pair_cost_rows'],
     '_planes': ['segment_image', 'fit_segment_planes', 'plane_refinement'],
     '_reference': ['aggregate_reference', 'left_right_refinement_reference', 'plane_refinement_reference'],
-    '_semiglobal': ['fixed_point_scale', 'semiglobal_aggregate', 'semiglobal_aggregate_reference', 'semiglobal_winners', 'semiglobal_disparities'],
+    '_semiglobal': ['fixed_point_scale', 'pixel_margins', 'semiglobal_aggregate', 'semiglobal_aggregate_reference', 'semiglobal_winners', 'semiglobal_disparities'],
 })

@@ -380,6 +380,44 @@ def semiglobal_disparities(cost: np.ndarray, guide: np.ndarray, *, min_disp: int
     return winners
 
 
+def pixel_margins(cost: np.ndarray, *, step: int = 1) -> np.ndarray:
+    """Each pixel's mean cost over the disparities minus its smallest, at every ``step``-th
+    row and column: what its data term says for its winner (P1 and P2 are multiples of
+    these margins' median).
+
+    Parameters
+    ----------
+    cost : ndarray, uint8 or float32 (H, W, D), C-contiguous
+    step : int
+
+    Returns
+    -------
+    ndarray, float32 (ceil(H / step), ceil(W / step))
+        The mean is summed in float64 and the difference rounded to float32 (numpy's
+        float32 ``mean - min`` of the same pixels to within float32 rounding).
+    """
+    h, w = cost.shape[:2]
+    out = np.empty(((h + step - 1) // step, (w + step - 1) // step), np.float32)
+    run_parts(_margin_rows, out.shape[0], np.ascontiguousarray(cost), int(step), out)
+    return out
+
+
+@njit(cache=True, **RANGE_KERNEL)
+def _margin_rows(cost, step, out, first, stop):
+    """Rows ``[first, stop)`` of :func:`pixel_margins`."""
+    nd = cost.shape[2]
+    for i in range(first, stop):
+        for j in range(out.shape[1]):
+            layers = cost[i * step, j * step]
+            total = 0.0
+            smallest = np.float64(layers[0])
+            for d in range(nd):
+                value = np.float64(layers[d])
+                total += value
+                smallest = min(smallest, value)
+            out[i, j] = np.float32(total / nd - smallest)
+
+
 def semiglobal_aggregate_reference(cost, guide, *, p1, p2, edge_scale=8.0, paths=8, cost_max=None):
     """:func:`semiglobal_aggregate` path by path in plain numpy (for the tests), on the same
     fixed-point costs and penalties, each quantised with the same float32 arithmetic."""

@@ -21,7 +21,7 @@ import numpy as np
 
 from ..aggregate._refine import fill_from_row, full_pair_disparity, left_right_stable, median_filter_disparity
 from ..aggregate._planes import plane_refinement
-from ..aggregate._semiglobal import semiglobal_disparities
+from ..aggregate._semiglobal import pixel_margins, semiglobal_disparities
 from ..cost._census import census_cost_volume
 from ..cost._cost import to_gray
 from ..fill._lowpass import _sample_values_f32
@@ -55,8 +55,7 @@ def typical_margin(cost: np.ndarray, *, step: int = 4, floor: float = 1.0) -> fl
     float
         In the cost's units; at least ``floor``.
     """
-    sub = np.asarray(cost[::step, ::step], np.float32)
-    return max(float(np.median(sub.mean(axis=2) - sub.min(axis=2))), floor)
+    return max(float(np.median(pixel_margins(cost, step=step))), floor)
 
 
 def census_semiglobal_disparity(left_f, right_f, *, tree_guide, min_disp, num_disp, params, timer):

@@ -3,8 +3,8 @@
 import numpy as np
 import pytest
 
-from stereobudget.aggregate import (fixed_point_scale, semiglobal_aggregate, semiglobal_aggregate_reference,
-                                    semiglobal_disparities, semiglobal_winners)
+from stereobudget.aggregate import (fixed_point_scale, pixel_margins, semiglobal_aggregate,
+                                    semiglobal_aggregate_reference, semiglobal_disparities, semiglobal_winners)
 
 
 @pytest.mark.parametrize("paths", [4, 8])
@@ -137,3 +137,15 @@ def test_a_single_disparity_layer():
     guide = np.zeros((3, 4), np.float32)
     fast = semiglobal_aggregate(cost, guide, p1=1.0, p2=4.0)
     np.testing.assert_allclose(fast, semiglobal_aggregate_reference(cost, guide, p1=1.0, p2=4.0))
+
+
+@pytest.mark.parametrize("dtype", [np.uint8, np.float32])
+@pytest.mark.parametrize("shape, step", [((9, 13, 6), 1), ((37, 41, 24), 4), ((5, 3, 1), 4)])
+def test_pixel_margins_are_mean_minus_min_of_the_subsampled_pixels(dtype, shape, step):
+    rng = np.random.default_rng(11)
+    cost = (rng.uniform(0, 1, shape) * (40 if dtype == np.uint8 else 1)).astype(dtype)
+    sub = cost[::step, ::step].astype(np.float64)
+    want = sub.mean(axis=2) - sub.min(axis=2)
+    got = pixel_margins(cost, step=step)
+    assert got.dtype == np.float32 and got.shape == want.shape
+    np.testing.assert_array_equal(got, want.astype(np.float32))
