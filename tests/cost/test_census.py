@@ -70,3 +70,24 @@ def test_sparse_pair_cost_mixes_the_census_bits():
     same = sparse_pair_cost(pixel, pixel + 10, np.nan, np.nan, 20.0, 0.0, 5.0, 7, 7, 0.5)
     assert same == pytest.approx(5.0)
     assert sparse_pair_cost(pixel, pixel + 10, np.nan, np.nan, 20.0, 0.0, 5.0, 7, -1, 0.5) == pytest.approx(10.0)
+
+
+@pytest.mark.parametrize("min_disp, layers", [(0, 9), (4, 20), (-3, 17), (30, 5)])
+def test_mix_spaced_census_matches_a_plain_loop(min_disp, layers):
+    """Each layer k of pixel (y, x) meets the right code at column x - min_disp - k, clamped to the row."""
+    from stereobudget.cost import mix_spaced_census
+    rng = np.random.default_rng(min_disp + 50)
+    h, w = 4, 23
+    volume = rng.uniform(0, 15, (h, w, layers)).astype(np.float32)
+    left_codes = rng.integers(0, 256, (h, w)).astype(np.uint8)
+    right_codes = rng.integers(0, 256, (h, w)).astype(np.uint8)
+    want = volume.copy()
+    for y in range(h):
+        for x in range(w):
+            for k in range(layers):
+                xr = min(max(x - min_disp - k, 0), w - 1)
+                bits = bin(int(left_codes[y, x]) ^ int(right_codes[y, xr])).count("1")
+                want[y, x, k] = want[y, x, k] * np.float32(0.05) + np.float32(0.04) * np.float32(bits)
+    got = mix_spaced_census(volume, left_codes, right_codes, min_disp=min_disp, volume_scale=0.05,
+                            census_weight=0.04)
+    np.testing.assert_array_equal(got, want)
