@@ -141,3 +141,38 @@ def test_a_frame_of_another_size_ends_a_temporal_stream_naming_the_frame(frames,
     items = list(decode_stream(str(tmp_path / "L" / "{index}.png"), str(stream), max_disp=16, temporal=False,
                                disparity=str(tmp_path / "E" / "{index}.pfm")))
     assert [item["width"] for item in items] == [96, 64]
+
+
+def test_left_images_written_while_the_stream_runs_are_read_as_they_are_when_their_frame_comes(frames, tmp_path):
+    """The next frame's left image is read while a frame decodes.  One that is not there yet,
+    and one that is rewritten after that read, are both taken as they are at their frame."""
+    import os
+    import threading
+
+    stream = frames / "lstream.sbs"
+    list(encode_stream([str(frames / "rights.raw")], str(stream), pattern=GRID, raw_size=(96, 64),
+                       pix_fmt="rgb24", overwrite=True))
+    lefts = tmp_path / "L"
+    lefts.mkdir()
+    (lefts / "0.png").write_bytes((frames / "L" / "0.png").read_bytes())
+    (lefts / "1.png").write_bytes((frames / "L" / "0.png").read_bytes())    # the wrong image, for now
+    frames_seen = []
+    threads_before = threading.active_count()
+    for summary in decode_stream(str(lefts / "{index}.png"), str(stream), max_disp=16,
+                                 disparity=str(tmp_path / "D" / "{index}.pfm")):
+        frames_seen.append(summary["frame"])
+        if summary["frame"] == 0:
+            # Frame 1's image was read ahead while frame 0 decoded; frame 2's does not exist yet.
+            (lefts / "1.png").write_bytes((frames / "L" / "1.png").read_bytes())
+            stamp = os.stat(lefts / "1.png")
+            os.utime(lefts / "1.png", ns=(stamp.st_atime_ns, stamp.st_mtime_ns + 10 ** 9))
+            (lefts / "2.png").write_bytes((frames / "L" / "2.png").read_bytes())
+    assert frames_seen == [0, 1, 2]
+    assert threading.active_count() == threads_before      # the reading thread is gone
+    for index in range(3):
+        alone = tmp_path / f"alone{index}.sbs"
+        encode_file(frames / f"r{index}.png", alone, pattern=GRID, overwrite=True)
+        decode_file(DecodeJob(left=str(frames / "L" / f"{index}.png"), samples=str(alone), max_disp=16,
+                              disparity=str(tmp_path / f"alone{index}.pfm")))
+        np.testing.assert_array_equal(read_disparity(tmp_path / "D" / f"{index}.pfm"),
+                                      read_disparity(tmp_path / f"alone{index}.pfm"))
