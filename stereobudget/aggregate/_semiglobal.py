@@ -418,20 +418,33 @@ def _margin_rows(cost, step, out, first, stop):
             out[i, j] = np.float32(total / nd - smallest)
 
 
-def semiglobal_aggregate_reference(cost, guide, *, p1, p2, edge_scale=8.0, paths=8, cost_max=None):
+def semiglobal_aggregate_reference(cost, guide, *, p1, p2, edge_scale=8.0, paths=8, cost_max=None, fixed_point=True):
     """:func:`semiglobal_aggregate` path by path in plain numpy (for the tests), on the same
-    fixed-point costs and penalties, each quantised with the same float32 arithmetic."""
+    fixed-point costs and penalties, each quantised with the same float32 arithmetic.
+
+    ``fixed_point=False`` sums the paths of the unquantised costs in float64 instead: what
+    the fixed point approximates.
+    """
     cost = np.asarray(cost)
     guide = np.asarray(guide, np.float32)
     h, w, nd = cost.shape
     p2 = max(float(p1), float(p2))
-    if cost_max is None:
-        cost_max = 255.0 if cost.dtype == np.uint8 else float(cost.max())
-    scale = np.float32(fixed_point_scale(cost_max, p2))
-    p1, p2, edge_scale = np.float32(p1), np.float32(p2), np.float32(edge_scale)
+    if fixed_point:
+        if cost_max is None:
+            cost_max = 255.0 if cost.dtype == np.uint8 else float(cost.max())
+        scale = np.float32(fixed_point_scale(cost_max, p2))
+        p1, p2, edge_scale = np.float32(p1), np.float32(p2), np.float32(edge_scale)
 
-    def fixed(value):
-        return np.floor(np.asarray(value, np.float32) * scale + np.float32(0.5)).astype(np.int64)
+        def fixed(value):
+            return np.floor(np.asarray(value, np.float32) * scale + np.float32(0.5)).astype(np.int64)
+        big = np.iinfo(np.int64).max // 2
+    else:
+        scale, p1, edge_scale = 1.0, float(p1), float(edge_scale)
+        guide = guide.astype(np.float64)
+
+        def fixed(value):
+            return np.asarray(value, np.float64)
+        big = np.inf
 
     cost = fixed(cost)
     p1_fixed = fixed(p1)
@@ -451,8 +464,7 @@ def semiglobal_aggregate_reference(cost, guide, *, p1, p2, edge_scale=8.0, paths
                     continue
                 prev = lr[py, px]
                 low = prev.min()
-                jump = fixed(max(p1, p2 / (np.float32(1.0) + abs(guide[y, x] - guide[py, px]) / edge_scale)))
-                big = np.iinfo(np.int64).max // 2
+                jump = fixed(max(p1, p2 / (1 + abs(guide[y, x] - guide[py, px]) / edge_scale)))
                 up = np.concatenate([[big], prev[:-1]]) + p1_fixed
                 down = np.concatenate([prev[1:], [big]]) + p1_fixed
                 lr[y, x] = cost[y, x] + np.minimum.reduce([prev, up, down, np.full(nd, low + jump)]) - low

@@ -47,33 +47,11 @@ def test_the_fixed_point_step_is_far_below_the_costs():
     cost = rng.uniform(0, 1, (12, 30, 24)).astype(np.float32)
     guide = rng.uniform(0, 255, (12, 30)).astype(np.float32)
     fast = semiglobal_aggregate(cost, guide, p1=0.1, p2=1.5)
-    exact = _float_sums(cost, guide, p1=0.1, p2=1.5)
+    exact = semiglobal_aggregate_reference(cost, guide, p1=0.1, p2=1.5, fixed_point=False)
     assert np.abs(fast - exact).max() < 8 * 30 / fixed_point_scale(1.0, 1.5)   # under a step per path and pixel
     ordered = np.sort(exact, axis=2)
     clear = ordered[:, :, 1] - ordered[:, :, 0] > 0.05
     np.testing.assert_array_equal(fast.argmin(axis=2)[clear], exact.argmin(axis=2)[clear])
-
-
-def _float_sums(cost, guide, *, p1, p2, edge_scale=8.0):
-    """The eight paths' sums in float64, without fixed point."""
-    cost = cost.astype(np.float64)
-    h, w, nd = cost.shape
-    total = np.zeros_like(cost)
-    for dy, dx in [(0, 1), (0, -1), (1, 0), (-1, 0), (1, 1), (1, -1), (-1, -1), (-1, 1)]:
-        lr = np.zeros_like(cost)
-        for y in (range(h) if dy >= 0 else range(h - 1, -1, -1)):
-            for x in (range(w) if dx >= 0 else range(w - 1, -1, -1)):
-                py, px = y - dy, x - dx
-                if not (0 <= py < h and 0 <= px < w):
-                    lr[y, x] = cost[y, x]
-                    continue
-                prev = lr[py, px]
-                low = prev.min()
-                jump = max(p1, p2 / (1 + abs(float(guide[y, x]) - float(guide[py, px])) / edge_scale))
-                shifted = np.minimum(np.concatenate([[np.inf], prev[:-1]]), np.concatenate([prev[1:], [np.inf]]))
-                lr[y, x] = cost[y, x] + np.minimum(np.minimum(prev, shifted + p1), low + jump) - low
-        total += lr
-    return total
 
 
 def test_smoothness_overrules_a_lone_wrong_pixel():
