@@ -9,7 +9,7 @@ parfor passes doubled the compiling of a default decode: one process compiled th
 decode and its recovered right image in 36.6-41.8 s with them and in 20.4-23.9 s
 without.  The kernels' results do not depend on the split.
 
-:func:`fill_zero`, :func:`take` and :func:`largest` are numpy one-liners that run between the decoders'
+:func:`fill_zero` and :func:`take` are numpy one-liners that run between the decoders'
 kernels, split the same way (numpy runs them on one thread).  Their results equal
 numpy's, bit for bit.
 """
@@ -124,35 +124,3 @@ def fill_zero(flat):
 def _zero_part(flat, first, stop):
     flat[first:stop] = 0.0
 
-
-def largest(flat):
-    """The largest element of a non-empty 1-D float32 array without NaN (``flat.max()``)."""
-    parts = max(1, min(numba.get_num_threads(), flat.shape[0]))
-    found = np.full(parts, -np.inf, np.float32)
-    run_parts(_largest_part, parts, flat, found, parts=parts)
-    return float(found.max())
-
-
-@njit(cache=True, **RANGE_KERNEL)
-def _largest_part(flat, found, first, stop):
-    # Part t of `found.shape[0]` even parts; eight running maxima, one vector instruction per eight.
-    parts = found.shape[0]
-    for t in range(first, stop):
-        lo = flat.shape[0] * t // parts
-        hi = flat.shape[0] * (t + 1) // parts
-        m0 = m1 = m2 = m3 = m4 = m5 = m6 = m7 = np.float32(-np.inf)
-        i = lo
-        while i + 8 <= hi:
-            m0 = max(m0, flat[i])
-            m1 = max(m1, flat[i + 1])
-            m2 = max(m2, flat[i + 2])
-            m3 = max(m3, flat[i + 3])
-            m4 = max(m4, flat[i + 4])
-            m5 = max(m5, flat[i + 5])
-            m6 = max(m6, flat[i + 6])
-            m7 = max(m7, flat[i + 7])
-            i += 8
-        best = max(max(max(m0, m1), max(m2, m3)), max(max(m4, m5), max(m6, m7)))
-        for k in range(i, hi):
-            best = max(best, flat[k])
-        found[t] = best

@@ -41,7 +41,7 @@ from numba import njit
 
 from .._kernels import _scratch as scratch
 from .._kernels._jit import NO_REFCOUNTS, RANGE_KERNEL
-from .._kernels._parallel import largest, run_parts
+from .._kernels._parallel import run_parts
 from .._kernels._simd import FIXED_LANES, fixed_path_step
 
 from ._winner import refined_winner, subpixel_winner
@@ -181,14 +181,13 @@ def _row_total(cost, guide, scale, p1, p2, edge_scale, down, up, y, row, total, 
     left + the paths from below, in fixed point (whole numbers).
 
     The left-to-right path is stepped straight into ``total`` (W, D), the right-to-left one
-    through ``path[0:2]`` and added in; ``path[2]`` is zeros (a path's first pixel is a step
-    from zeros, as in :func:`_vertical_pass`).  uint16 scratch; sums of whole numbers below
-    2**16 do not depend on their order.
+    through ``path[0:2]`` and added in; ``path[2]`` stays zeros (a path's first pixel is a
+    step from zeros, as in :func:`_vertical_pass`).  uint16 scratch; sums of whole numbers
+    below 2**16 do not depend on their order.
     """
     w, nd = cost.shape[1], cost.shape[2]
     p1_fixed = _fixed(p1, scale)
     zeros = path[2]
-    zeros[:] = 0
     prev_min = _path_step(cost[y, 0], scale, zeros, np.uint16(0), p1_fixed, p1_fixed, total[0])
     for x in range(1, w):
         p2e = _edge_p2(guide[y, x], guide[y, x - 1], p1, p2, edge_scale, scale)
@@ -275,7 +274,7 @@ def _row_scratch(w, nd, winners=True):
     """Scratch of one range of rows: the path pair and a row of zeros (3, D) and the row's
     fixed-point sum (W, D) uint16; with the winners, the row's sum (W, D) and its layers (D, W) float32, and the
     right view's best value and layer (W,) float32 / int32."""
-    fixed = (np.empty((3, nd), np.uint16), np.empty((w, nd), np.uint16))
+    fixed = (np.zeros((3, nd), np.uint16), np.empty((w, nd), np.uint16))
     if not winners:
         return fixed
     return fixed + (np.empty((w, nd), np.float32), np.empty((nd, w), np.float32), np.empty(w, np.float32),
@@ -310,7 +309,7 @@ def _vertical_sums(cost, guide, p1, p2, edge_scale, paths, cost_max):
     guide = np.ascontiguousarray(guide, np.float32)
     p1, p2 = float(p1), float(max(p1, p2))
     if cost_max is None:
-        cost_max = 255.0 if cost.dtype == np.uint8 else largest(cost.reshape(-1))
+        cost_max = 255.0 if cost.dtype == np.uint8 else float(cost.max())
     scale = np.float32(fixed_point_scale(cost_max, p2))
     # Fixed-point sums: half the memory of float32 and twice the lanes per vector.
     (down, up), memory = _sum_volumes(cost.shape)

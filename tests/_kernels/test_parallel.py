@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 from numba import njit
 
-from stereobudget._kernels import fill_zero, largest, part_bounds, run_parts, take
+from stereobudget._kernels import fill_zero, part_bounds, run_parts, take
 from stereobudget._kernels._parallel import stop_workers
 from stereobudget.cost import float_and_gray, to_float_image, to_gray
 from stereobudget.aggregate._refine import _stable_levels
@@ -112,15 +112,6 @@ def test_fill_zero_clears_every_element(size):
     flat = np.full(size, 3.5, np.float32)
     fill_zero(flat)
     assert not flat.any()
-
-
-@pytest.mark.parametrize("size", [1, 7, 8, 9, 65_537, 300_001])
-def test_largest_is_numpys_max(size):
-    rng = np.random.default_rng(size)
-    flat = rng.normal(size=size).astype(np.float32)
-    assert largest(flat) == flat.max()
-    flat[rng.integers(size)] = 1e30           # wherever the largest sits: a part's tail, a lane
-    assert largest(flat) == flat.max()
 
 
 @pytest.mark.parametrize("shape", [(1, 1, 3), (7, 5, 3), (375, 450, 3), (9, 11, 4)])
