@@ -313,6 +313,8 @@ def decode_command(inputs, left_dir, samples_dir, manifest, max_disp, min_disp, 
             overwrite=overwrite, batch=batch, problem=pair.problem, max_memory=max_memory,
             disparity_format=disparity_format, synthesis=synthesis, **geometry, **outputs))
     if not batch:
+        from stereobudget._kernels import avoid_huge_pages
+        avoid_huge_pages()      # one pair: every volume is touched once (see its docstring)
         job = job_list[0]
         try:
             summary = decode_file(job)

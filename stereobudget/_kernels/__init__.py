@@ -8,5 +8,5 @@ __getattr__, __dir__, __all__ = attach(__name__, {
     '_parallel': ['run_parts', 'part_bounds', 'take', 'fill_zero'],
     '_jit': ['NO_REFCOUNTS'],
     '_first_run': ['kernels_cached', 'announce_first_compile'],
-    '_scratch': ['SPARE_BYTES', 'LARGE_BYTES', 'keep_freed_memory', 'empty_volume', 'frame', 'holding_no_large_spares', 'zeroed_volume', 'recycle', 'in_use', 'begin_keeping', 'end_keeping', 'keeping', 'spare_bytes', 'release'],
+    '_scratch': ['SPARE_BYTES', 'LARGE_BYTES', 'keep_freed_memory', 'avoid_huge_pages', 'empty_volume', 'frame', 'holding_no_large_spares', 'zeroed_volume', 'recycle', 'in_use', 'begin_keeping', 'end_keeping', 'keeping', 'spare_bytes', 'release'],
 })

@@ -185,6 +185,32 @@ def test_kept_freed_memory_spares_repeated_blocks_their_page_faults():
     assert kept_faults * 4 < plain_faults, (kept_faults, plain_faults)
 
 
+_HUGE_PAGE_ADVICE = """
+import numpy as np
+try:
+    from numpy._core import multiarray
+except ImportError:
+    from numpy.core import multiarray
+from stereobudget._kernels import _scratch
+before = multiarray._get_madvise_hugepage()
+print(before, _scratch.avoid_huge_pages(), multiarray._get_madvise_hugepage())
+"""
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="numpy advises huge pages on Linux only")
+def test_avoiding_huge_pages_turns_numpys_advice_off_unless_the_environment_keeps_it():
+    # Process-wide, so in a process of its own.
+    def run(**env):
+        plain = {key: value for key, value in os.environ.items() if key != "NUMPY_MADVISE_HUGEPAGE"}
+        return subprocess.run([sys.executable, "-c", _HUGE_PAGE_ADVICE], env=dict(plain, **env), check=True,
+                              capture_output=True, text=True).stdout.split()
+    before, turned_off, after = run()
+    if before == "False":
+        pytest.skip("numpy does not advise huge pages on this kernel")
+    assert (turned_off, after) == ("True", "False")
+    assert run(NUMPY_MADVISE_HUGEPAGE="1") == ["True", "False", "True"]
+
+
 def test_volumes_are_kept_between_calls_only_while_someone_keeps_them(monkeypatch):
     # A plain decode runs in_use(): its volumes serve its own later ones, and all go at its end.
     monkeypatch.setattr(_scratch._frames, "keepers", 0)
