@@ -271,8 +271,9 @@ def _match_inputs(left: np.ndarray, samples):
     sigma = 0.5 * stride
     dense = lowpass_interpolation(samples, sigma=sigma)
     dense = dense if dense.ndim == 3 else dense[:, :, None]
-    ys = np.arange(stride // 2, h, stride)
-    xs = np.arange(stride // 2, w, stride)
+    # At least one point each way, also in an image smaller than the stride.
+    ys = np.arange(min(stride // 2, h - 1), h, stride)
+    xs = np.arange(min(stride // 2, w - 1), w, stride)
     lattice = _gray(np.ascontiguousarray(dense[np.ix_(ys, xs)]))
     return lattice, ys, xs, gaussian_lowpass(_gray(left), sigma=sigma)
 
@@ -336,6 +337,10 @@ def estimate_disparity_range(left: np.ndarray, samples, *, high_percentile: floa
     start = time.perf_counter()
     h, w = samples.height, samples.width
     lattice, ys, xs, image = _match_inputs(left, samples)
+    if lattice.size == 0:   # no whole block of a downsample pattern in an image smaller than one
+        return RangeEstimate(min_disp=0, max_disp=max(1, min(max(2, w // 4), w - 1)), low=math.nan,
+                             high=math.nan, votes=0, positive_fraction=0.0, negative_fraction=0.0,
+                             vertical_offset=0, fallback=True, seconds=time.perf_counter() - start)
     lattice = np.ascontiguousarray(lattice, np.float32)
     image = np.ascontiguousarray(image, np.float32)
     ys = np.ascontiguousarray(ys, np.int64)

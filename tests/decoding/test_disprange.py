@@ -152,3 +152,16 @@ def test_psnr_at_samples_equals_the_whole_warp_read_at_the_samples(planes, patte
     diff = warped[rows[reached], cols[reached]].astype(np.float64) - values[reached]
     want = 10.0 * math.log10(255.0 ** 2 / float(np.mean(diff * diff)))
     assert psnr_at_samples(planes.left, disparity, samples) == want
+
+
+@pytest.mark.parametrize("kind", ["grid", "jitter", "fps", "adaptive_fps", "downsample"])
+@pytest.mark.parametrize("shape", [(2, 7), (1, 50), (7, 2), (3, 3), (10, 4)], ids=lambda s: f"{s[0]}x{s[1]}")
+def test_an_image_smaller_than_the_stride_gets_a_range_that_fits_it(kind, shape):
+    # Scattered points and block means were read on a lattice with no point in such an image.
+    rng = np.random.default_rng(0)
+    left = rng.integers(0, 256, shape + (3,), dtype=np.uint8)
+    samples = encode_image(np.roll(left, -1, axis=1), pattern=SamplingPattern(kind, 5, 5, seed=1))
+    estimate = estimate_disparity_range(left, samples)
+    assert 0 <= estimate.min_disp < estimate.max_disp <= max(1, shape[1] - 1)
+    low, high, _ = resolve_range(left, samples, max_disp=1)
+    assert (low, high) == (0, 1)
