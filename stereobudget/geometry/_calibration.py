@@ -136,7 +136,10 @@ def _build(path, values: dict, *, unit_scale: float, image_size, rectified_hint=
     if np.abs(r @ r.T - np.eye(3)).max() > ROTATION_TOLERANCE or abs(np.linalg.det(r) - 1) > ROTATION_TOLERANCE:
         _fail(path, f"R is not a rotation (det {np.linalg.det(r):.4f}, |R R^T - I| "
                     f"{np.abs(r @ r.T - np.eye(3)).max():.2g})")
-    norm = float(np.linalg.norm(t))
+    with np.errstate(over="ignore"):
+        norm = float(np.linalg.norm(t))
+    if not math.isfinite(norm):
+        _fail(path, "T is too large to be a baseline")
     if norm == 0:
         _fail(path, "T is zero: the two cameras are at the same place (no baseline)")
     if abs(t[0]) < 0.5 * norm:
@@ -200,24 +203,21 @@ def _read_filestorage(path: str) -> StereoCalibration:
     try:
         values = {}
         for key in _KEYS:
-            node = storage.getNode(key)
-            if node.empty() or node.isNone():
+            node, mat = _node_matrix(path, storage, key)
+            if node is None:
                 _fail(path, f"{key} is missing (a stereo calibration needs {' '.join(_KEYS)})")
-            mat = node.mat()
             if mat is None:
-                if node.isSeq():
-                    mat = [node.at(i).real() for i in range(node.size())]
-                else:
-                    _fail(path, f"{key} is not a matrix")
+                _fail(path, f"{key} is not a matrix")
             values[key] = mat
 
         def scalar(key):
-            node = storage.getNode(key)
-            if node.empty() or node.isNone():
-                return None
-            if node.isString():
-                return node.string()
-            return node.real()
+            try:
+                node = storage.getNode(key)
+                if node.empty() or node.isNone():
+                    return None
+                return node.string() if node.isString() else node.real()
+            except Exception as exc:  # noqa: BLE001 -- cv2.error from a malformed node
+                _fail(path, f"{key} is not readable: {_opencv_reason(exc)}")
 
         unit = scalar("unit")
         size = _size_from(path, scalar("image_width"), scalar("image_height"))
@@ -226,10 +226,35 @@ def _read_filestorage(path: str) -> StereoCalibration:
     return _build(path, values, unit_scale=_unit_scale(path, unit), image_size=size)
 
 
+def _node_matrix(path, storage, key):
+    """(node, matrix) of ``key`` in an open ``cv2.FileStorage``: (None, None) when absent, matrix
+    None when the node is neither a matrix nor a sequence of numbers."""
+    # OpenCV asserts on a malformed node (a string where a map is read, a matrix whose data
+    # does not fill its declared size, an unknown element type, a size it cannot allocate):
+    # each is the file's fault, told in one line.
+    try:
+        node = storage.getNode(key)
+        if node.empty() or node.isNone():
+            return None, None
+        mat = node.mat()
+        if mat is None and node.isSeq():
+            mat = [node.at(i).real() for i in range(node.size())]
+        return node, mat
+    except Exception as exc:  # noqa: BLE001 -- cv2.error
+        _fail(path, f"{key} is not a readable matrix: {_opencv_reason(exc)}")
+
+
+def _opencv_reason(exc) -> str:
+    """The part of an OpenCV error that says what failed (``(-215:Assertion failed) isMap()``)."""
+    message = " ".join(str(exc).split())
+    found = re.search(r"error: (\(-?\d+:[^)]*\).*?)(?: in function .*)?$", message)
+    return (found.group(1) if found else message)[:160]
+
+
 def _read_json(path: str, text: str) -> StereoCalibration:
     try:
         data = json.loads(text)
-    except ValueError as exc:
+    except (ValueError, RecursionError) as exc:   # RecursionError: arrays nested thousands deep
         _fail(path, f"not valid JSON: {exc}")
     if not isinstance(data, dict):
         _fail(path, "a JSON calibration must be one object with M1 D1 M2 D2 R T")
@@ -327,6 +352,8 @@ def read_calibration(path: str) -> StereoCalibration:
         Middlebury ``doffs``.
     """
     path = os.fspath(path)
+    if not path.strip():
+        _fail(repr(path), "an empty file name")
     if os.path.isdir(path):
         _fail(path, "is a directory, not a calibration file")
     try:
@@ -341,7 +368,7 @@ def read_calibration(path: str) -> StereoCalibration:
     if not raw.strip():
         _fail(path, "empty file")
     try:
-        text = raw.decode("utf-8")
+        text = raw.decode("utf-8-sig")      # -sig: a leading byte-order mark, as Windows editors write
     except UnicodeDecodeError:
         _fail(path, "not a text file (a calibration is YAML, XML, JSON or Middlebury calib.txt)")
     head = text.lstrip()

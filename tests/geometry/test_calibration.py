@@ -84,6 +84,47 @@ def test_unreadable_files(tmp_path, text, field):
     assert "\n" not in str(info.value)
 
 
+@pytest.mark.parametrize("m1, reason", [
+    ("[1, 2, 3]", "isMap"),                                                        # a sequence, not a matrix map
+    ("!!opencv-matrix {rows: 3, cols: 3, dt: d, data: [1, 2]}", "nelems"),         # too few elements
+    ("!!opencv-matrix {rows: 3, cols: 3, dt: q, data: [1, 2, 3, 4, 5, 6, 7, 8, 9]}", "data type"),
+    ("!!opencv-matrix {rows: 100000, cols: 100000, dt: d, data: [1]}", "allocate"),  # 80 GB declared
+])
+def test_opencv_nodes_it_cannot_read_are_named(tmp_path, m1, reason):
+    # OpenCV asserts on such nodes; the file and the field are still told in one line.
+    text = open(write_filestorage(tmp_path / "ok.yml")).read()
+    start = text.index("M1:")
+    end = text.index("D1:")
+    path = tmp_path / "stereo.yml"
+    path.write_text(text[:start] + f"M1: {m1}\n" + text[end:])
+    with pytest.raises(CalibrationError, match=f"M1 is not a readable matrix: .*{reason}") as info:
+        read_calibration(str(path))
+    assert str(info.value).startswith(str(path) + ": ") and "\n" not in str(info.value)
+
+
+def test_json_nested_too_deep_is_not_valid_json(tmp_path):
+    path = tmp_path / "deep.json"
+    path.write_text('{"M1": ' + "[" * 100_000 + "]" * 100_000 + "}")
+    with pytest.raises(CalibrationError, match="not valid JSON"):
+        read_calibration(str(path))
+
+
+def test_a_baseline_too_large_for_a_norm_is_refused_without_a_warning(tmp_path):
+    import warnings
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        with pytest.raises(CalibrationError, match="T is too large"):
+            read_calibration(write_json(tmp_path / "far.json", T=[-1e308, 0.0, 0.0]))
+
+
+def test_byte_order_mark_and_empty_name(tmp_path):
+    path = tmp_path / "calib.txt"
+    path.write_bytes(b"\xef\xbb\xbf" + MIDDLEBURY.encode())        # as Windows editors save UTF-8
+    assert read_calibration(str(path)).rectified
+    with pytest.raises(CalibrationError, match="an empty file name"):
+        read_calibration("")
+
+
 @pytest.mark.parametrize("overrides, field", [
     (dict(T=None), "T is missing"),
     (dict(M1=np.eye(2)), "M1 must be 3x3"),
