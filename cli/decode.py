@@ -126,14 +126,22 @@ def _decode_stream(left, samples, templates: dict, *, as_json: bool, **options) 
 
     start = time.perf_counter()
     frames = 0
-    for summary in decode_stream(left, samples, **templates, **options):
-        frames += 1
-        log.info("%s + %s -> %s: %s, disparity %d..%d (%s), %.2f s", summary["left"], summary["samples"],
-                 ", ".join(summary["outputs"].values()), summary["method"], summary["min_disp"],
-                 summary["max_disp"], summary["range_source"], summary["timings"]["total"])
-        report_warnings(summary, label=f"frame {summary['frame']}")
-        if as_json:
-            common.emit_json(summary)
+    try:
+        for summary in decode_stream(left, samples, **templates, **options):
+            frames += 1
+            log.info("%s + %s -> %s: %s, disparity %d..%d (%s), %.2f s", summary["left"], summary["samples"],
+                     ", ".join(summary["outputs"].values()), summary["method"], summary["min_disp"],
+                     summary["max_disp"], summary["range_source"], summary["timings"]["total"])
+            report_warnings(summary, label=f"frame {summary['frame']}")
+            if as_json:
+                common.emit_json(summary)
+    except StereoBudgetError as exc:
+        if as_json and exc.path != "<stdout>":
+            # The frame that ended the stream gets its record too (a camera's log keeps the failure).
+            from stereobudget.io import display_name
+            common.emit_json({"status": "failed", "frame": frames, "samples": display_name(samples),
+                              **common.failure_fields(exc)})
+        raise
     seconds = time.perf_counter() - start
     log.info("%d frame(s) in %.2f s (%.2f frames/s)", frames, seconds, frames / max(seconds, 1e-9))
 
