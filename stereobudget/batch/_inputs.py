@@ -252,7 +252,8 @@ def read_manifest(path: str) -> list[Pair]:
         non-integer disparity.
     """
     try:
-        with open(path, newline="", encoding="utf-8") as handle:
+        # utf-8-sig: Excel's "CSV UTF-8" starts with a byte-order mark, which would hide the header.
+        with open(path, newline="", encoding="utf-8-sig") as handle:
             rows = [row for row in csv.reader(handle)]
     except OSError as exc:
         raise OptionError(f"cannot read the manifest: {exc.strerror or exc}", path=str(path)) from None

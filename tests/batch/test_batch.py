@@ -121,6 +121,8 @@ def test_read_manifest(tmp_path):
         (str(tmp_path / "l/a.png"), str(tmp_path / "s/a.sbs"), 40), ("/abs/b.png", str(tmp_path / "s/b.sbs"), None)]
     manifest.write_text("a.png,a.sbs\n")
     assert [(Path(p.left).name, p.max_disp) for p in batch.read_manifest(str(manifest))] == [("a.png", None)]
+    manifest.write_bytes(b"\xef\xbb\xbfleft,samples\na.png,a.sbs\n")        # Excel's "CSV UTF-8"
+    assert [Path(p.left).name for p in batch.read_manifest(str(manifest))] == ["a.png"]
     for bad in ("a.png\n", "a.png,a.sbs,many\n", "left,right\nx,y\n", ""):
         manifest.write_text(bad)
         with pytest.raises(OptionError):
