@@ -164,13 +164,18 @@ def check_distinct_outputs(jobs, *, key: Callable) -> None:
     """
     owner: dict[str, object] = {}
     for job in jobs:
+        own: set = set()
         for out in key(job):
             if out is None or out == STDIO:
                 continue
             norm = os.path.normpath(os.path.abspath(out))
+            if norm in own:
+                raise OptionError(f"two outputs of {job.label} are the same file {out!r}; give each output "
+                                  f"its own name")
             if norm in owner:
                 raise OptionError(f"two inputs would write the same output {out!r} "
                                   f"({owner[norm]} and {job.label}); add {{parent}} or change the template")
+            own.add(norm)
             owner[norm] = job.label
 
 

@@ -264,6 +264,8 @@ def check_inputs(left: np.ndarray, samples: SampleSet, *, min_disp: int, max_dis
         raise MismatchError(f"left image is {left.dtype} but the samples are {samples.dtype}")
     if max_disp <= min_disp:
         raise OptionError(f"--max-disp ({max_disp}) must be greater than --min-disp ({min_disp})")
+    if w < 2:
+        raise OptionError(f"the images are {w} pixel wide: a disparity needs at least two columns")
     if max_disp - min_disp >= w or abs(min_disp) >= w or abs(max_disp) >= w:
         raise OptionError(f"disparity range [{min_disp}, {max_disp}] does not fit an image {w} pixels wide")
 

@@ -398,3 +398,13 @@ def test_synthesis_options_need_the_right_image(tmp_path):
     result = invoke_decode(left_dir / "f00.png", samples_dir / "f00.sbs", "--max-disp", MAX_DISP,
                            "--disparity", tmp_path / "d.pfm", "--no-enhance")
     assert result.exit_code == OptionError.exit_code and "--right" in result.stderr
+
+
+def test_two_outputs_of_one_pair_on_one_file_are_told_apart_from_two_pairs():
+    from types import SimpleNamespace
+    same = [SimpleNamespace(label="L/a.png", outputs=["D/a.pfm", "D/a.pfm"])]
+    with pytest.raises(OptionError, match="two outputs of L/a.png are the same file 'D/a.pfm'"):
+        batch.check_distinct_outputs(same, key=lambda job: job.outputs)
+    clash = [SimpleNamespace(label=f"L{i}/a.png", outputs=["D/a.pfm"]) for i in range(2)]
+    with pytest.raises(OptionError, match=r"two inputs would write the same output 'D/a.pfm' \(L0/a.png and L1/a.png\)"):
+        batch.check_distinct_outputs(clash, key=lambda job: job.outputs)

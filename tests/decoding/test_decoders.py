@@ -266,3 +266,10 @@ def test_hybrid_on_semiglobal_paths_recovers_a_slanted_scene(aggregation):
                                  params=DecoderParams(hybrid_aggregation=aggregation))
     assert result.disparity.dtype == np.float32 and np.isfinite(result.disparity).all()
     assert _good_fraction(result.disparity, sc) >= 0.93
+
+
+def test_an_image_one_pixel_wide_is_refused_for_what_it_is():
+    left = np.random.default_rng(0).integers(0, 256, (20, 1, 3), dtype=np.uint8)
+    samples = encode_image(left, pattern=SamplingPattern("grid", 5, 5))
+    with pytest.raises(OptionError, match="the images are 1 pixel wide: a disparity needs at least two columns"):
+        stereobudget.decode(left, samples, max_disp=1)
