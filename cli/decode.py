@@ -9,6 +9,7 @@ templates) reports each failed pair and exits 1 if any failed.
 from __future__ import annotations
 
 import logging
+import os
 
 import click
 
@@ -109,6 +110,9 @@ def _is_stream(inputs, left_dir, samples_dir, manifest, templates: dict) -> bool
     if left == "-":
         raise OptionError("LEFT cannot be '-' for a stream of frames: give an image, a folder or glob of "
                           "images, or a template such as 'L/{index:05d}.png'")
+    if samples != "-" and os.path.isdir(samples):
+        raise OptionError(f"{{index}} numbers the frames of a stream, whose SAMPLES is one file or '-', but "
+                          f"{samples} is a folder; for a folder of pairs use {{stem}} in the output names")
     if several:
         plain = [f"--{name}" for name, value in templates.items()
                  if value != "-" and not has_template(value, f"--{name}")]

@@ -134,7 +134,9 @@ def parse_size(text: str) -> int:
     except ValueError:
         raise ValueError(f"memory size must look like 8G, 500M or 1.5G (units K, M, G, T), "
                          f"got {raw!r}") from None
-    if not _math.isfinite(value) or value <= 0:
+    if not _math.isfinite(value):
+        raise ValueError(f"memory size must be a finite number, got {raw!r}")
+    if value <= 0:
         raise ValueError(f"memory size must be positive, got {raw!r}")
     return int(value * _SIZE_UNITS[unit])
 

@@ -529,6 +529,8 @@ def test_parse_size_and_default_limit(monkeypatch):
     for bad in ("", "lots", "-1G", "0", "1Q", "nan", "inf"):
         with pytest.raises(ValueError):
             sbio.parse_size(bad)
+    with pytest.raises(ValueError, match="must be a finite number, got '1e400G'"):   # not "must be positive"
+        sbio.parse_size("1e400G")
     monkeypatch.delenv(sbio.MEMORY_LIMIT_ENV, raising=False)
     available = sbio.available_memory()
     assert available and available > 0

@@ -73,6 +73,7 @@ def test_stream_file_to_indexed_outputs_with_json_lines(camera):
     (["L/0.png", "stream.sbs", "--disparity", "one.pfm"], 2, "holds several .sbs frames (a stream) but --disparity"),
     (["L/0.png", "stream.sbs", "--disparity", "-", "--scheduler", "local"], 2, "a stream is decoded in order"),
     (["-", "stream.sbs", "--disparity", "D/{index}.pfm"], 2, "LEFT cannot be '-' for a stream"),
+    (["L", "L", "--disparity", "D/{index}.pfm"], 2, "but L is a folder; for a folder of pairs use {stem}"),
 ])
 def test_stream_option_errors(camera, args, code, fragment):
     if not (camera / "stream.sbs").exists():
