@@ -118,12 +118,12 @@ def avoid_huge_pages() -> bool:
     more.  Where the kernel honours that advice on demand (``defrag`` = ``madvise``, the
     common default), the first touch of such an array may wait while the kernel compacts
     memory to free a 2 MiB page.  A process that decodes one pair touches all its volumes
-    once: on the benchmark machine a warm single ``sb-decode`` of a 0.36 MP pair took
-    0.80-0.96 s instead of 0.60-0.65 s in 2 to 3 runs of 7 that way, and never with the
-    advice off (0.62-0.69 s).  A stream or a batch reuses its volumes, where huge pages
-    pay (3 % faster frames), so only a command that decodes one pair calls this; it is
-    process-wide, so never a library call.  ``NUMPY_MADVISE_HUGEPAGE=1`` in the
-    environment keeps numpy's advice.
+    once, and paid that wait in some runs: a warm single ``sb-decode`` of a 0.36 MP pair
+    (plain install, 2-core Intel machine, 12 runs alternating) took a median of 0.75 s
+    (0.60-0.95) with the advice and 0.65 s (0.63-0.68) without.  A stream or a batch
+    reuses its volumes, where huge pages pay (frames ~3 % faster), so only a command that
+    decodes one pair calls this; the setting is process-wide, so no decode of the library
+    does.  ``NUMPY_MADVISE_HUGEPAGE=1`` in the environment keeps numpy's advice.
 
     Returns
     -------
