@@ -251,30 +251,36 @@ def median_filter_disparity(disparity: np.ndarray, size: int) -> np.ndarray:
     return cv2.medianBlur(np.ascontiguousarray(disparity, np.float32), int(size))
 
 
-def fill_from_row(disparity, valid):
-    """Each invalid pixel takes the disparity of the nearest valid pixel of its row.
+def fill_from_row(disparity, valid, *, background=False):
+    """Each invalid pixel takes the disparity of a valid pixel of its row.
 
-    The left one wins a tie; a row without a valid pixel keeps its values.  After a
-    semi-global left-right check this measured better than propagating along I1's tree
-    (Yang's refinement), whose pull towards fronto-parallel neighbours undoes slanted
-    surfaces (23 real pairs: Vintage 28 % against 49 %, Playtable 25 % against 35 %).
+    By default the nearest one (the left one wins a tie).  With ``background``, the smaller
+    of the disparities of the nearest valid pixels on its left and on its right (the one
+    there is, at a row's end): a pixel the left-right check rejects next to a depth edge
+    is most often one the nearer surface hides or fattens, and belongs to the farther one
+    (Hirschmüller's treatment of occlusions).  A row without a valid pixel keeps its
+    values.  After a semi-global left-right check either measured better than propagating
+    along I1's tree (Yang's refinement), whose pull towards fronto-parallel neighbours
+    undoes slanted surfaces (23 real pairs: Vintage 28 % against 49 %, Playtable 25 %
+    against 35 %).
 
     Parameters
     ----------
     disparity : ndarray, float32 (H, W)
     valid : ndarray, bool (H, W)
+    background : bool, keyword-only
 
     Returns
     -------
     ndarray, float32 (H, W)
     """
     out = disparity.copy()
-    run_parts(_fill_rows, disparity.shape[0], disparity, valid, out)
+    run_parts(_fill_rows, disparity.shape[0], disparity, valid, out, bool(background))
     return out
 
 
 @njit(cache=True, **RANGE_KERNEL)
-def _fill_rows(disparity, valid, out, first, stop):
+def _fill_rows(disparity, valid, out, background, first, stop):
     """Rows ``[first, stop)`` of :func:`fill_from_row` into ``out`` (a copy of ``disparity``)."""
     w = disparity.shape[1]
     for y in range(first, stop):
@@ -289,7 +295,9 @@ def _fill_rows(disparity, valid, out, first, stop):
             while nxt < w and not valid[y, nxt]:
                 nxt += 1
             for xx in range(x, nxt):
-                if last >= 0 and (nxt >= w or xx - last <= nxt - xx):
+                if last >= 0 and nxt < w and background:
+                    out[y, xx] = min(disparity[y, last], disparity[y, nxt])
+                elif last >= 0 and (nxt >= w or xx - last <= nxt - xx):
                     out[y, xx] = disparity[y, last]
                 elif nxt < w:
                     out[y, xx] = disparity[y, nxt]

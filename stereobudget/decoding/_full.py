@@ -5,8 +5,8 @@ Real pairs differ in exposure and noise between the cameras and hold slanted sur
 to a monotonic change of brightness, and semi-global aggregation charges a slanted
 surface one small penalty per disparity step instead of the tree filter's fronto-parallel
 pull.  Pixels the left-right check rejects (occlusions, mismatches) take the disparity of
-the nearest stable pixel of their row (:func:`stereobudget.aggregate.fill_from_row`), then
-a 3x3 median.
+the nearest stable pixel of their row, or for Hybrid the smaller of the stable ones on
+either side (:func:`stereobudget.aggregate.fill_from_row`), then a 3x3 median.
 
 The penalties scale with the cost volume itself: P1 and P2 are multiples of the *typical
 margin*, the median over pixels of (mean cost over disparities - smallest cost).  That
@@ -88,7 +88,7 @@ def census_semiglobal_disparity(left_f, right_f, *, tree_guide, min_disp, num_di
 
 
 def semiglobal_disparity(cost, guide, *, min_disp, p1, p2, params, timer, samples=None, paths=None,
-                         cost_max=None):
+                         cost_max=None, row_fill=None):
     """Semi-global paths, diagonal left-right check, row fill of rejected pixels, the
     plane refinement (``params.plane_refinement``), median.
 
@@ -113,6 +113,8 @@ def semiglobal_disparity(cost, guide, *, min_disp, p1, p2, params, timer, sample
         Semi-global paths (default: ``params.sgm_paths``).
     cost_max : float, optional
         A bound on the costs (:func:`stereobudget.aggregate.semiglobal_aggregate`).
+    row_fill : {"nearest", "background"}, optional
+        What the rejected pixels take (default: ``params.row_fill``).
 
     Returns
     -------
@@ -131,7 +133,8 @@ def semiglobal_disparity(cost, guide, *, min_disp, p1, p2, params, timer, sample
         del cost
     with timer("refine"):
         stable = left_right_stable(disp_left, disp_right, np.float32(1.0))
-        filled = fill_from_row(disp_left, stable)
+        filled = fill_from_row(disp_left, stable,
+                               background=(params.row_fill if row_fill is None else row_fill) == "background")
     if params.plane_refinement:
         with timer("planes"):
             filled = plane_refinement(filled, stable, guide, samples=samples, min_disp=min_disp,

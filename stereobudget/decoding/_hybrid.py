@@ -108,7 +108,7 @@ def _hybrid_semiglobal(left_lp, right_lp, grids, guide, *, min_disp, num_disp, p
         margin = typical_margin(cost, floor=0.0)
     return semiglobal_disparity(cost, guide, min_disp=min_disp, p1=params.sgm_p1 * margin,
                                 p2=params.hybrid_sgm_p2 * margin, params=params, timer=timer,
-                                paths=params.hybrid_sgm_paths)
+                                paths=params.hybrid_sgm_paths, row_fill=params.hybrid_row_fill)
 
 
 def _hybrid_census_semiglobal(left_f, guide, samples, left_lp, right_lp, *, min_disp, num_disp, params, timer,
@@ -137,5 +137,5 @@ def census_semiglobal_tail(cost, guide, samples, left_lp, right_lp, *, min_disp,
     # none), and the census has 8 bits: the mix is at most |weight| + |1 - weight|.
     return semiglobal_disparity(cost, guide, min_disp=min_disp, p1=params.sgm_p1 * margin,
                                 p2=params.hybrid_sgm_p2 * margin, params=params, timer=timer,
-                                samples=samples, paths=params.hybrid_sgm_paths,
+                                samples=samples, paths=params.hybrid_sgm_paths, row_fill=params.hybrid_row_fill,
                                 cost_max=abs(weight) + abs(1.0 - weight))

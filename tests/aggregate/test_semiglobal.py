@@ -74,22 +74,35 @@ def test_winners_left_and_right_views():
         semiglobal_aggregate(np.zeros((2, 2, 2), np.uint8), np.zeros((2, 2), np.float32), p1=1, p2=2, paths=6)
 
 
-def test_fill_from_row_takes_the_nearest_valid_pixel():
+@pytest.mark.parametrize("background", [False, True])
+def test_fill_from_row_takes_the_nearest_or_the_farther_valid_pixel(background):
     from stereobudget.aggregate import fill_from_row
     rng = np.random.default_rng(1)
     disparity = rng.uniform(0, 30, (6, 17)).astype(np.float32)
     valid = rng.random((6, 17)) < 0.4
     valid[0] = False                                          # a row with nothing to copy
-    out = fill_from_row(disparity, valid)
+    out = fill_from_row(disparity, valid, background=background)
     for y in range(6):
         good = np.flatnonzero(valid[y])
         for x in range(17):
+            left, right = good[good < x], good[good > x]
             if valid[y, x] or not len(good):
                 assert out[y, x] == disparity[y, x]
+            elif background and len(left) and len(right):
+                # Beside an edge the rejected pixel belongs to the farther surface (smaller disparity).
+                assert out[y, x] == min(disparity[y, left[-1]], disparity[y, right[0]])
             else:
                 distance = np.abs(good - x)
                 nearest = good[np.flatnonzero(distance == distance.min())[0]]   # the left one on a tie
                 assert out[y, x] == disparity[y, nearest]
+
+
+def test_the_background_fill_puts_an_occluded_strip_on_the_farther_surface():
+    from stereobudget.aggregate import fill_from_row
+    disparity = np.array([[10, 10, 10, 0, 0, 0, 4, 4]], np.float32)     # near 10, far 4, a strip rejected
+    valid = disparity > 0
+    np.testing.assert_array_equal(fill_from_row(disparity, valid, background=True)[0], [10, 10, 10, 4, 4, 4, 4, 4])
+    np.testing.assert_array_equal(fill_from_row(disparity, valid)[0], [10, 10, 10, 10, 10, 4, 4, 4])
 
 
 @pytest.mark.parametrize("paths", [4, 8])
