@@ -123,4 +123,3 @@ def fill_zero(flat):
 @njit(cache=True, **RANGE_KERNEL)
 def _zero_part(flat, first, stop):
     flat[first:stop] = 0.0
-

@@ -335,12 +335,13 @@ def estimate_disparity_range(left: np.ndarray, samples, *, high_percentile: floa
         ``[0, W // 4]`` and ``fallback`` is set.
     """
     start = time.perf_counter()
-    h, w = samples.height, samples.width
+    w = samples.width
     lattice, ys, xs, image = _match_inputs(left, samples)
     if lattice.size == 0:   # no whole block of a downsample pattern in an image smaller than one
-        return RangeEstimate(min_disp=0, max_disp=max(1, min(max(2, w // 4), w - 1)), low=math.nan,
-                             high=math.nan, votes=0, positive_fraction=0.0, negative_fraction=0.0,
-                             vertical_offset=0, fallback=True, seconds=time.perf_counter() - start)
+        min_disp, max_disp = _fitted(*_fallback_range(w), w)
+        return RangeEstimate(min_disp=min_disp, max_disp=max_disp, low=math.nan, high=math.nan, votes=0,
+                             positive_fraction=0.0, negative_fraction=0.0, vertical_offset=0, fallback=True,
+                             seconds=time.perf_counter() - start)
     lattice = np.ascontiguousarray(lattice, np.float32)
     image = np.ascontiguousarray(image, np.float32)
     ys = np.ascontiguousarray(ys, np.int64)
@@ -408,15 +409,9 @@ def estimate_disparity_range(left: np.ndarray, samples, *, high_percentile: floa
         fallback = False
     else:
         high = low = math.nan
-        min_disp, max_disp = 0, max(2, w // 4)
+        min_disp, max_disp = _fallback_range(w)
         fallback = True
-    # The range must fit the image (decode's check): clip it.
-    max_disp = min(max_disp, w - 1)
-    min_disp = max(min_disp, -(w - 1))
-    if max_disp <= min_disp:
-        max_disp = min_disp + 1
-    if max_disp - min_disp >= w:
-        min_disp = max_disp - (w - 1)
+    min_disp, max_disp = _fitted(min_disp, max_disp, w)
 
     positive = float(np.mean(votes > 1)) if n_votes else 0.0
     negative = float(np.mean(votes < -1)) if n_votes else 0.0
@@ -425,6 +420,22 @@ def estimate_disparity_range(left: np.ndarray, samples, *, high_percentile: floa
                          vertical_offset=vertical_offset, vertical_scores=vertical_scores,
                          disparity_step=step, textured_fraction=textured_fraction, fallback=fallback,
                          seconds=time.perf_counter() - start)
+
+
+def _fallback_range(width: int) -> tuple[int, int]:
+    """The range searched when the samples do not measure one: ``[0, W // 4]``, at least ``[0, 2]``."""
+    return 0, max(2, width // 4)
+
+
+def _fitted(min_disp: int, max_disp: int, width: int) -> tuple[int, int]:
+    """``[min_disp, max_disp]`` clipped to fit an image ``width`` pixels wide (decode's check)."""
+    max_disp = min(max_disp, width - 1)
+    min_disp = max(min_disp, -(width - 1))
+    if max_disp <= min_disp:
+        max_disp = min_disp + 1
+    if max_disp - min_disp >= width:
+        min_disp = max_disp - (width - 1)
+    return min_disp, max_disp
 
 
 def _main_clusters(votes: np.ndarray, *, gap_pixels: float, gap_fraction: float,
