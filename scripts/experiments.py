@@ -98,7 +98,7 @@ def lower_bound_disparity(left: np.ndarray, right: np.ndarray, *, fraction: floa
         cost = _resize_volume(low, (w, h), cv2.INTER_LINEAR)
     tree = build_tree(left_f, sigma=params.tree_sigma, median_size=params.tree_median)
     disp = aggregate_winners(cost, tree, min_disp=int(min_disp), out=cost)
-    return median_filter_disparity(disp, params.median_size)
+    return median_filter_disparity(disp, params.median_size, passes=params.median_passes)
 
 
 def upsample_block_means(low: np.ndarray, *, stride_x: int, stride_y: int, height: int,

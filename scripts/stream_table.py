@@ -214,7 +214,7 @@ def profile(width, height, max_disp, repeats):
     wrap(_semiglobal, "_horizontal_paths_winners", "SGM horizontal paths + winners + sub-pixel")
     wrap(_full, "left_right_stable", "LR check")
     wrap(_full, "fill_from_row", "row fill")
-    wrap(_full, "median_filter_disparity", "median 3x3")
+    wrap(_full, "median_filter_disparity", "median")
     scene = make_scene("slanted", height=height, width=width, max_disp=48, seed=1)
     with tempfile.TemporaryDirectory() as tmp:
         left_path = Path(tmp) / "left.png"

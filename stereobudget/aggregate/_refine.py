@@ -199,7 +199,7 @@ def left_right_refined_rows(left_rows, right_rows, *, left_layout, right_layout,
         stable = left_right_stable(disp_l, disp_r, np.float32(1.0))
         # The left volume is dead after its winner was taken: it holds the refinement cost.
         disp = nonlocal_refinement(disp_l, stable, left_tree, min_disp=min_disp, num_disp=num_disp, out=left_rows)
-        disp = median_filter_disparity(disp, params.median_size)
+        disp = median_filter_disparity(disp, params.median_size, passes=params.median_passes)
     return disp, stable
 
 
@@ -243,12 +243,31 @@ def full_pair_disparity(left_f, right_f, *, tree_guide, min_disp, num_disp, para
     return disp
 
 
-def median_filter_disparity(disparity: np.ndarray, size: int) -> np.ndarray:
-    """Median filter (OpenCV; float32 supports sizes 3 and 5)."""
-    if size <= 1:
+def median_filter_disparity(disparity: np.ndarray, size: int, *, passes: int = 1) -> np.ndarray:
+    """Median filter of a disparity map, ``passes`` times over (OpenCV, borders replicated).
+
+    A median repeated converges to a map that it leaves unchanged; two passes of 5 x 5
+    remove about what one 7 x 7 median does (OpenCV filters float32 maps only at sizes 3
+    and 5) for 2 x 0.8 ms a 640 x 480 map.
+
+    Parameters
+    ----------
+    disparity : ndarray, float32 (H, W)
+    size : {0, 1, 3, 5}
+        Window side; 0 or 1 returns ``disparity`` unchanged.
+    passes : int, keyword-only
+
+    Returns
+    -------
+    ndarray, float32 (H, W)
+    """
+    if size <= 1 or passes < 1:
         return disparity
     import cv2
-    return cv2.medianBlur(np.ascontiguousarray(disparity, np.float32), int(size))
+    out = np.ascontiguousarray(disparity, np.float32)
+    for _ in range(int(passes)):
+        out = cv2.medianBlur(out, int(size))
+    return out
 
 
 def fill_from_row(disparity, valid, *, background=False):

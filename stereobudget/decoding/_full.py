@@ -6,7 +6,7 @@ to a monotonic change of brightness, and semi-global aggregation charges a slant
 surface one small penalty per disparity step instead of the tree filter's fronto-parallel
 pull.  Pixels the left-right check rejects (occlusions, mismatches) take the disparity of
 the nearest stable pixel of their row, or for Hybrid the smaller of the stable ones on
-either side (:func:`stereobudget.aggregate.fill_from_row`), then a 3x3 median.
+either side (:func:`stereobudget.aggregate.fill_from_row`), then a 5x5 median twice.
 
 The penalties scale with the cost volume itself: P1 and P2 are multiples of the *typical
 margin*, the median over pixels of (mean cost over disparities - smallest cost).  That
@@ -71,7 +71,7 @@ def census_semiglobal_disparity(left_f, right_f, *, tree_guide, min_disp, num_di
     min_disp, num_disp : int
     params : stereobudget.decoding.DecoderParams
         ``sgm_p1``, ``sgm_p2`` (multiples of the typical margin), ``sgm_edge_scale``,
-        ``sgm_paths``, ``median_size``.
+        ``sgm_paths``, ``median_size``, ``median_passes``.
     timer : callable
         ``timer(stage)`` context manager.
 
@@ -104,8 +104,8 @@ def semiglobal_disparity(cost, guide, *, min_disp, p1, p2, params, timer, sample
     p1, p2 : float
         Path penalties in the cost's units.
     params : stereobudget.decoding.DecoderParams
-        ``sgm_edge_scale``, ``sgm_paths`` (unless ``paths``), ``median_size``, ``plane_refinement``,
-        ``plane_segment_size``.
+        ``sgm_edge_scale``, ``sgm_paths`` (unless ``paths``), ``median_size``, ``median_passes``,
+        ``plane_refinement``, ``plane_segment_size``.
     timer : callable
     samples : SampleSet, optional
         The samples the plane refinement checks its planes against.
@@ -140,4 +140,4 @@ def semiglobal_disparity(cost, guide, *, min_disp, p1, p2, params, timer, sample
             filled = plane_refinement(filled, stable, guide, samples=samples, min_disp=min_disp,
                                       max_disp=max_disp, size=params.plane_segment_size)
     with timer("refine"):
-        return median_filter_disparity(filled, params.median_size)
+        return median_filter_disparity(filled, params.median_size, passes=params.median_passes)

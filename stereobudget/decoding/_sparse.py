@@ -1,6 +1,6 @@
 """Sparse (paper Fig. 2(b)): Eq. (2) sparse DSI -> Eq. (3) normalised joint bilateral fill
 guided by I1 -> Yang's non-local aggregation on I1's MST -> winner-take-all with parabolic
-sub-pixel refinement -> 3x3 median.  The fill's arguments are shared with Hybrid."""
+sub-pixel refinement -> 5x5 median, twice.  The fill's arguments are shared with Hybrid."""
 
 from __future__ import annotations
 
@@ -97,4 +97,4 @@ def decode_sparse(left_f, guide, samples, tree_guide, *, min_disp, num_disp, par
         disp = _tree.aggregate_rows_winners(cost, layout, min_disp=int(min_disp), num_disp=num_disp)
     scratch.recycle(cost)
     with timer("median"):
-        return median_filter_disparity(disp, params.median_size)
+        return median_filter_disparity(disp, params.median_size, passes=params.median_passes)

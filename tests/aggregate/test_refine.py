@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from stereobudget.aggregate import (build_tree, left_right_refinement_reference, left_right_stable,
-                                    nonlocal_refinement)
+                                    median_filter_disparity, nonlocal_refinement)
 from stereobudget.scenes import make_scene
 
 
@@ -37,3 +37,40 @@ def test_check_and_refinement_equal_the_reference(kind, min_disp, tolerance):
     assert 0.5 < stable.mean() < 0.95
     # float32 walk against the float64 reference: the winners agree, their parabola to rounding.
     np.testing.assert_allclose(refined, expected, atol=1e-3)
+
+
+def _plain_median(disparity, size, passes):
+    """A size x size median over windows clipped to the image by repeating its border, ``passes`` times."""
+    out = disparity.astype(np.float64)
+    r = size // 2
+    for _ in range(passes):
+        padded = np.pad(out, r, mode="edge")
+        windows = np.lib.stride_tricks.sliding_window_view(padded, (size, size))
+        out = np.median(windows.reshape(out.shape + (-1,)), axis=-1)
+    return out
+
+
+@pytest.mark.parametrize("size, passes", [(3, 1), (5, 1), (5, 2), (5, 3)])
+def test_median_passes_equal_a_plain_median_repeated(size, passes):
+    rng = np.random.default_rng(size * 10 + passes)
+    disparity = np.repeat(rng.uniform(0, 30, (9, 1)), 23, axis=1).astype(np.float32)
+    streaks = rng.random(disparity.shape) < 0.2                  # specks and broken row streaks
+    disparity[streaks] = rng.uniform(0, 30, streaks.sum()).astype(np.float32)
+    got = median_filter_disparity(disparity, size, passes=passes)
+    assert got.dtype == np.float32 and got.shape == disparity.shape
+    np.testing.assert_array_equal(got, _plain_median(disparity, size, passes).astype(np.float32))
+
+
+def test_second_median_pass_removes_what_the_first_leaves():
+    # A 3-pixel-wide diagonal band of wrong disparities on a flat field: one 5 x 5 window
+    # holds up to 13 of its pixels, so one pass keeps its middle, and a second pass
+    # finds fewer than half left and removes it.
+    disparity = np.full((40, 40), 10.0, np.float32)
+    for y in range(40):
+        disparity[y, max(0, y - 1):y + 2] = 20.0
+    once = median_filter_disparity(disparity, 5, passes=1)
+    twice = median_filter_disparity(disparity, 5, passes=2)
+    assert np.count_nonzero(once != 10.0) > 0
+    assert np.count_nonzero(twice != 10.0) < np.count_nonzero(once != 10.0)
+    np.testing.assert_array_equal(median_filter_disparity(disparity, 5, passes=0), disparity)
+    np.testing.assert_array_equal(median_filter_disparity(disparity, 1, passes=2), disparity)

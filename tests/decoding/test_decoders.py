@@ -100,6 +100,10 @@ def test_mismatched_inputs_are_refused():
         stereobudget.decode(sc.left, samples, max_disp=10, method="downsample")
     with pytest.raises(OptionError, match="stride 1"):  # "full" needs every pixel of I2
         stereobudget.decode(sc.left, samples, max_disp=10, method="full")
+    with pytest.raises(OptionError, match="median_size"):  # OpenCV filters float32 maps at 3 and 5 only
+        DecoderParams(median_size=7)
+    with pytest.raises(OptionError, match="median_passes"):
+        DecoderParams(median_passes=-1)
 
 
 def test_winner_take_all_subpixel_parabola():
