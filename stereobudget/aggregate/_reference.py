@@ -10,6 +10,7 @@ from __future__ import annotations
 import numpy as np
 
 from ._mst import MinimumSpanningTree
+from ._weighted_median import DEFAULT_RADIUS, DEFAULT_SIGMA_C, DEFAULT_SIGMA_S, DEFAULT_STEP, likeness_table
 
 
 def aggregate_reference(cost: np.ndarray, tree: MinimumSpanningTree) -> np.ndarray:
@@ -204,3 +205,45 @@ def plane_refinement_reference(disparity, confident, gray, *, samples=None, min_
 def _on_plane(y, x, disparity, plane, mx, my, tolerance):
     """Whether pixel (x, y)'s disparity lies within ``tolerance`` of ``plane`` (coordinates about (mx, my))."""
     return abs(float(disparity[y, x]) - (plane[0] * (x - mx) + plane[1] * (y - my) + plane[2])) <= tolerance
+
+
+def weighted_median_fill_reference(disparity, valid, guide, *, radius=DEFAULT_RADIUS, sigma_s=DEFAULT_SIGMA_S,
+                                   sigma_c=DEFAULT_SIGMA_C, step=DEFAULT_STEP):
+    """:func:`stereobudget.aggregate.weighted_median_fill` in plain numpy, one rejected pixel at a
+    time, its sums in float64 in the window's order, as the kernel's."""
+    disparity = np.asarray(disparity, np.float32)
+    guide = np.asarray(guide, np.float32)
+    out = disparity.copy()
+    h, w = disparity.shape
+    finite = disparity[np.isfinite(disparity)]
+    if finite.size == 0:
+        return out
+    low = np.floor(finite.min())
+    likeness = likeness_table(float(sigma_c))
+    reach = (radius // step) * step
+    for y, x in zip(*np.nonzero(~np.asarray(valid, bool))):
+        weights, values = [], []
+        for yy in range(y - reach, y + reach + 1, step):
+            for xx in range(x - reach, x + reach + 1, step):
+                if not (0 <= yy < h and 0 <= xx < w) or not np.isfinite(disparity[yy, xx]):
+                    continue
+                level = int(abs(float(guide[yy, xx]) - float(guide[y, x])) * 4.0 + 0.5)
+                if level >= likeness.size:
+                    continue
+                near = np.exp(-((yy - y) ** 2 + (xx - x) ** 2) / (2.0 * sigma_s * sigma_s))
+                weights.append(near * likeness[level])
+                values.append(float(disparity[yy, xx]))
+        if not weights:
+            continue
+        bins = [int(np.floor(v - float(low) + 0.5)) for v in values]
+        per_bin = np.zeros(max(bins) + 1)
+        for b, weight in zip(bins, weights):
+            per_bin[b] += weight
+        half, reached = 0.5 * sum(weights), 0.0
+        for median_bin in range(per_bin.size):
+            reached += per_bin[median_bin]
+            if reached >= half and per_bin[median_bin] > 0:
+                break
+        chosen = [(weight, v) for b, weight, v in zip(bins, weights, values) if b == median_bin]
+        out[y, x] = sum(weight * v for weight, v in chosen) / sum(weight for weight, _ in chosen)
+    return out

@@ -21,6 +21,7 @@ import numpy as np
 
 from ..aggregate._refine import fill_from_row, full_pair_disparity, left_right_stable, median_filter_disparity
 from ..aggregate._planes import plane_refinement
+from ..aggregate._weighted_median import weighted_median_fill
 from ..aggregate._semiglobal import pixel_margins, semiglobal_disparities
 from ..cost._census import census_cost_volume
 from ..cost._cost import to_gray
@@ -89,8 +90,9 @@ def census_semiglobal_disparity(left_f, right_f, *, tree_guide, min_disp, num_di
 
 def semiglobal_disparity(cost, guide, *, min_disp, p1, p2, params, timer, samples=None, paths=None,
                          cost_max=None, row_fill=None):
-    """Semi-global paths, diagonal left-right check, row fill of rejected pixels, the
-    plane refinement (``params.plane_refinement``), median.
+    """Semi-global paths, diagonal left-right check, row fill of rejected pixels and their
+    weighted median (``params.rejected_median``), the plane refinement
+    (``params.plane_refinement``), median.
 
     The tail that every semi-global route shares (the full pair, both of Hybrid's).
 
@@ -104,8 +106,8 @@ def semiglobal_disparity(cost, guide, *, min_disp, p1, p2, params, timer, sample
     p1, p2 : float
         Path penalties in the cost's units.
     params : stereobudget.decoding.DecoderParams
-        ``sgm_edge_scale``, ``sgm_paths`` (unless ``paths``), ``median_size``, ``median_passes``,
-        ``plane_refinement``, ``plane_segment_size``.
+        ``sgm_edge_scale``, ``sgm_paths`` (unless ``paths``), ``rejected_median``, ``median_size``,
+        ``median_passes``, ``plane_refinement``, ``plane_segment_size``.
     timer : callable
     samples : SampleSet, optional
         The samples the plane refinement checks its planes against.
@@ -135,6 +137,8 @@ def semiglobal_disparity(cost, guide, *, min_disp, p1, p2, params, timer, sample
         stable = left_right_stable(disp_left, disp_right, np.float32(1.0))
         filled = fill_from_row(disp_left, stable,
                                background=(params.row_fill if row_fill is None else row_fill) == "background")
+        if params.rejected_median:
+            filled = weighted_median_fill(filled, stable, guide)
     if params.plane_refinement:
         with timer("planes"):
             filled = plane_refinement(filled, stable, guide, samples=samples, min_disp=min_disp,

@@ -166,6 +166,16 @@ class DecoderParams:
         (stride 3); Middlebury's four 7.86 -> 7.73, 7.23 -> 7.02, 5.78 -> 5.56.  The full pair
         measured worse with it (16.83 -> 16.96, 3.80 -> 3.86): its rejected pixels are fewer and
         less often beside an occluding edge, so it keeps the nearest.
+    rejected_median : bool
+        After the row fill of the semi-global routes (the full pair and Hybrid's), give each
+        pixel the left-right check rejected the weighted median of the filled map around it,
+        weighted by nearness and likeness in I1 (Rhemann et al. 2011, Hosni et al. 2013:
+        radius 9, sigma_s 9, every third pixel; sigma_c 10 grey levels;
+        :func:`stereobudget.aggregate.weighted_median_fill`): the row fill's streaks take the
+        disparity of the surface the pixel belongs to.  Measured with ``scripts/evaluate_real.py
+        --param rejected_median=False`` against the default (mean bad > 1 px, Hybrid at stride
+        5 / ``--epsilon 0.04`` / stride 3, then the full pair): see docs/results.md, "The
+        rejected pixels' weighted median".
     right_check : {"tree", "diagonal"}
         Where the left-right check of Hybrid, Downsample and the full pair gets the right
         view's disparity: ``"tree"`` aggregates the right view's costs on the right
@@ -216,6 +226,7 @@ class DecoderParams:
     right_check: str = "tree"
     row_fill: str = "nearest"
     hybrid_row_fill: str = "background"
+    rejected_median: bool = True
     plane_refinement: bool = False
     plane_segment_size: int = 12
 

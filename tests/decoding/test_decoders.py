@@ -250,10 +250,15 @@ def test_full_pair_survives_an_exposure_difference(kind):
     result = stereobudget.decode(sc.left, samples, max_disp=int(np.ceil(sc.max_disp)))
     assert result.method == "full"
     assert _good_fraction(result.disparity, sc) >= 0.97
-    # The paper's absolute-difference cost on the tree does not survive it.
+    # The paper's absolute-difference cost on the tree does not survive it over a wide range
+    # (measured 68 % good against 99.8 %).  On the slanted scene both do, within 0.02 pp of
+    # each other (99.86 / 99.84 %), which is no ordering to test.
     paper = stereobudget.decode(sc.left, samples, max_disp=int(np.ceil(sc.max_disp)),
                                 params=DecoderParams(full_cost="ad"))
-    assert _good_fraction(paper.disparity, sc) < _good_fraction(result.disparity, sc)
+    if kind == "large_range":
+        assert _good_fraction(paper.disparity, sc) < _good_fraction(result.disparity, sc) - 0.1
+    else:
+        assert _good_fraction(paper.disparity, sc) >= 0.97
 
 
 def test_unknown_full_cost_is_refused(scene):
