@@ -84,17 +84,32 @@ def weighted_median_fill(disparity: np.ndarray, valid: np.ndarray, guide: np.nda
     disparity = np.ascontiguousarray(disparity, np.float32)
     out = disparity.copy()
     targets = np.flatnonzero(~np.asarray(valid, bool).ravel())
-    finite = disparity[np.isfinite(disparity)]
-    if targets.size == 0 or finite.size == 0:
+    if targets.size == 0:
         return out
-    low = np.floor(finite.min())
-    bins = int(np.floor(finite.max() - low + 0.5)) + 1
+    low, high = _finite_range(disparity)
+    if low is None:
+        return out
+    low = np.floor(low)
+    bins = int(np.floor(high - low + 0.5)) + 1
     guide = np.ascontiguousarray(guide, np.float32)
     nearness = nearness_table(radius, step, float(sigma_s))
     likeness = likeness_table(float(sigma_c))
     run_parts(_fill_targets, targets.size, disparity, guide, targets, nearness, likeness, (radius // step) * step,
               step, float(low), out, scratch=lambda: (np.zeros(bins, np.float64), np.zeros(bins, np.float64)))
     return out
+
+
+def _finite_range(disparity):
+    """(smallest, largest) finite value of ``disparity``, or (None, None) when it has none."""
+    # fmin / fmax skip NaN without a copy of the map; only a map holding infinities
+    # takes the masked copy.
+    low, high = float(np.fmin.reduce(disparity, axis=None)), float(np.fmax.reduce(disparity, axis=None))
+    if not (np.isfinite(low) and np.isfinite(high)):
+        finite = disparity[np.isfinite(disparity)]
+        if finite.size == 0:
+            return None, None
+        low, high = float(finite.min()), float(finite.max())
+    return low, high
 
 
 @njit(cache=True, **RANGE_KERNEL)
