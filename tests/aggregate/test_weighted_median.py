@@ -52,8 +52,9 @@ def test_an_empty_or_all_valid_map_is_returned_as_is():
         weighted_median_fill(disparity, np.ones((3, 4), bool), guide, step=0)
 
 
-def test_it_follows_the_row_fill_in_a_decode():
-    scene = make_scene("planes", seed=0)
+@pytest.mark.parametrize("kind", ["planes", "slanted", "weak_texture"])
+def test_it_follows_the_row_fill_in_a_decode(kind):
+    scene = make_scene(kind, seed=0)
     samples = encode_image(scene.right, pattern=SamplingPattern("grid", 5, 5))
     bad = {}
     for flag in (False, True):
@@ -61,5 +62,6 @@ def test_it_follows_the_row_fill_in_a_decode():
                                      params=DecoderParams(rejected_median=flag))
         error = np.abs(np.nan_to_num(result.disparity, nan=-1e9) - scene.disparity)
         bad[flag] = 100.0 * np.mean(error[scene.nonocc] > 1.0)
-    # Measured 0.70 -> 0.55 % over seeds 0-2 (the streaks beside the planes' edges).
+    # Measured without -> with: planes 0.23 -> 0.14 %, slanted 1.04 -> 0.82 %, weak texture
+    # 0.94 -> 0.90 % (the streaks beside the surfaces' edges).
     assert bad[True] < bad[False]
