@@ -43,7 +43,7 @@ _REACH = 4.0
 
 
 def likeness_table(sigma_c: float) -> np.ndarray:
-    """``c(g)`` at ``g = i / 4`` grey levels, ``i = 0 ... 4 * ceil(4 sigma_c) - 1`` (float64)."""
+    """``c(g)`` at ``g = i / 4`` grey levels, ``i = 0 ... ceil(16 sigma_c) - 1`` (float64): up to 4 sigma_c."""
     steps = int(np.ceil(_REACH * sigma_c * _LEVELS_PER_GREY))
     grey = np.arange(max(steps, 1), dtype=np.float64) / _LEVELS_PER_GREY
     return np.exp(-grey * grey / (2.0 * sigma_c * sigma_c))

@@ -6,7 +6,9 @@ to a monotonic change of brightness, and semi-global aggregation charges a slant
 surface one small penalty per disparity step instead of the tree filter's fronto-parallel
 pull.  Pixels the left-right check rejects (occlusions, mismatches) take the disparity of
 the nearest stable pixel of their row, or for Hybrid the smaller of the stable ones on
-either side (:func:`stereobudget.aggregate.fill_from_row`), then a 5x5 median twice.
+either side (:func:`stereobudget.aggregate.fill_from_row`); each of them then takes the
+weighted median of its neighbourhood (:func:`stereobudget.aggregate.weighted_median_fill`),
+and the map a 5x5 median twice.
 
 The penalties scale with the cost volume itself: P1 and P2 are multiples of the *typical
 margin*, the median over pixels of (mean cost over disparities - smallest cost).  That
