@@ -135,7 +135,7 @@ def warm_hybrid_tail(*, kinds=KINDS) -> float:
         fill = rng.random((*guide.shape, 9), dtype=np.float32)
         # I1 stands in for both low-passed images: only their types matter here.
         census_semiglobal_tail(fill, guide, samples, left_f, left_f.copy(), min_disp=0, params=DecoderParams(),
-                               timer=StageTimer(), weight=hybrid_weight(5))
+                               timer=StageTimer(), weight=hybrid_weight(5), image=left_f)
     for scene, samples in pairs:
         psnr_at_samples(scene.left, scene.disparity, samples)
         recover_right_image(scene.left, scene.disparity, samples)

@@ -207,12 +207,14 @@ def _on_plane(y, x, disparity, plane, mx, my, tolerance):
     return abs(float(disparity[y, x]) - (plane[0] * (x - mx) + plane[1] * (y - my) + plane[2])) <= tolerance
 
 
-def weighted_median_fill_reference(disparity, valid, guide, *, radius=DEFAULT_RADIUS, sigma_s=DEFAULT_SIGMA_S,
+def weighted_median_fill_reference(disparity, valid, image, *, radius=DEFAULT_RADIUS, sigma_s=DEFAULT_SIGMA_S,
                                    sigma_c=DEFAULT_SIGMA_C, step=DEFAULT_STEP):
     """:func:`stereobudget.aggregate.weighted_median_fill` in plain numpy, one rejected pixel at a
     time, its sums in float64 in the window's order, as the kernel's."""
     disparity = np.asarray(disparity, np.float32)
-    guide = np.asarray(guide, np.float32)
+    image = np.asarray(image, np.float32)
+    if image.ndim == 2:
+        image = image[:, :, None]
     out = disparity.copy()
     h, w = disparity.shape
     finite = disparity[np.isfinite(disparity)]
@@ -227,7 +229,8 @@ def weighted_median_fill_reference(disparity, valid, guide, *, radius=DEFAULT_RA
             for xx in range(x - reach, x + reach + 1, step):
                 if not (0 <= yy < h and 0 <= xx < w) or not np.isfinite(disparity[yy, xx]):
                     continue
-                level = int(abs(float(guide[yy, xx]) - float(guide[y, x])) * 4.0 + 0.5)
+                difference = max(abs(float(a) - float(b)) for a, b in zip(image[yy, xx], image[y, x]))
+                level = int(difference * 4.0 + 0.5)
                 if level >= likeness.size:
                     continue
                 near = np.exp(-((yy - y) ** 2 + (xx - x) ** 2) / (2.0 * sigma_s * sigma_s))

@@ -87,11 +87,11 @@ def census_semiglobal_disparity(left_f, right_f, *, tree_guide, min_disp, num_di
         cost = census_cost_volume(left_gray, right_gray, min_disp=min_disp, num_disp=num_disp)  # uint8
         margin = typical_margin(cost)
     return semiglobal_disparity(cost, left_gray, min_disp=min_disp, p1=params.sgm_p1 * margin,
-                                p2=params.sgm_p2 * margin, params=params, timer=timer)
+                                p2=params.sgm_p2 * margin, params=params, timer=timer, image=left_f)
 
 
 def semiglobal_disparity(cost, guide, *, min_disp, p1, p2, params, timer, samples=None, paths=None,
-                         cost_max=None, row_fill=None):
+                         cost_max=None, row_fill=None, image=None):
     """Semi-global paths, diagonal left-right check, row fill of rejected pixels and their
     weighted median (``params.rejected_median``), the plane refinement
     (``params.plane_refinement``), median.
@@ -119,6 +119,8 @@ def semiglobal_disparity(cost, guide, *, min_disp, p1, p2, params, timer, sample
         A bound on the costs (:func:`stereobudget.aggregate.semiglobal_aggregate`).
     row_fill : {"nearest", "background"}, optional
         What the rejected pixels take (default: ``params.row_fill``).
+    image : ndarray, float32 (H, W, C), optional
+        I1, whose colours weigh the rejected pixels' weighted median (default: ``guide``).
 
     Returns
     -------
@@ -140,7 +142,7 @@ def semiglobal_disparity(cost, guide, *, min_disp, p1, p2, params, timer, sample
         filled = fill_from_row(disp_left, stable,
                                background=(params.row_fill if row_fill is None else row_fill) == "background")
         if params.rejected_median:
-            filled = weighted_median_fill(filled, stable, guide)
+            filled = weighted_median_fill(filled, stable, guide if image is None else image)
     if params.plane_refinement:
         with timer("planes"):
             filled = plane_refinement(filled, stable, guide, samples=samples, min_disp=min_disp,

@@ -64,7 +64,7 @@ def decode_hybrid(left_f, guide, samples, tree_guide, *, min_disp, num_disp, par
         left_lp = gaussian_lowpass(left_f, sigma=sigma)
     if params.hybrid_aggregation == "semiglobal":
         return _hybrid_semiglobal(left_lp, right_lp, grids, guide, min_disp=min_disp, num_disp=num_disp,
-                                  params=params, timer=timer, mix_weights=_hybrid_mix(params, weight))
+                                  params=params, timer=timer, mix_weights=_hybrid_mix(params, weight), image=left_f)
     with timer("tree"):
         tree, left_layout, right_layout = pair_trees(tree_guide, right_lp, params=params)
     with timer("cost"):
@@ -91,7 +91,7 @@ def _hybrid_mix(params, weight):
     return weight / params.truncation, (1.0 - weight) / dense_max
 
 
-def _hybrid_semiglobal(left_lp, right_lp, grids, guide, *, min_disp, num_disp, params, timer, mix_weights):
+def _hybrid_semiglobal(left_lp, right_lp, grids, guide, *, min_disp, num_disp, params, timer, mix_weights, image):
     """Hybrid's mixed DSI aggregated along semi-global paths, LR-checked on the diagonal,
     rejected pixels filled from their row (as the full pair, :mod:`stereobudget.decoding._full`)."""
     h, w = guide.shape
@@ -108,7 +108,7 @@ def _hybrid_semiglobal(left_lp, right_lp, grids, guide, *, min_disp, num_disp, p
         margin = typical_margin(cost, floor=0.0)
     return semiglobal_disparity(cost, guide, min_disp=min_disp, p1=params.sgm_p1 * margin,
                                 p2=params.hybrid_sgm_p2 * margin, params=params, timer=timer,
-                                paths=params.hybrid_sgm_paths, row_fill=params.hybrid_row_fill)
+                                paths=params.hybrid_sgm_paths, row_fill=params.hybrid_row_fill, image=image)
 
 
 def _hybrid_census_semiglobal(left_f, guide, samples, left_lp, right_lp, *, min_disp, num_disp, params, timer,
@@ -118,13 +118,14 @@ def _hybrid_census_semiglobal(left_f, guide, samples, left_lp, right_lp, *, min_
     with timer("jbf_fill"):
         cost = sparse_filled_cost(left_f, guide, samples, min_disp=min_disp, num_disp=num_disp, params=params)
     return census_semiglobal_tail(cost, guide, samples, left_lp, right_lp, min_disp=min_disp, params=params,
-                                  timer=timer, weight=weight)
+                                  timer=timer, weight=weight, image=left_f)
 
 
-def census_semiglobal_tail(cost, guide, samples, left_lp, right_lp, *, min_disp, params, timer, weight):
+def census_semiglobal_tail(cost, guide, samples, left_lp, right_lp, *, min_disp, params, timer, weight, image):
     """What the default Hybrid runs after the Sparse fill ``cost`` (H, W, D): the census of the
-    low-passed pair mixed in, the semi-global paths, the checks and the row fill.  Its own
-    function so that ``python -m stereobudget.warm`` can compile it apart from the fill."""
+    low-passed pair mixed in, the semi-global paths, the checks, the row fill and the weighted
+    median (weighed by the colours of I1, ``image``).  Its own function so that ``python -m
+    stereobudget.warm`` can compile it apart from the fill."""
     p = samples.pattern
     with timer("cost"):
         cost = np.ascontiguousarray(cost, np.float32)
@@ -138,4 +139,4 @@ def census_semiglobal_tail(cost, guide, samples, left_lp, right_lp, *, min_disp,
     return semiglobal_disparity(cost, guide, min_disp=min_disp, p1=params.sgm_p1 * margin,
                                 p2=params.hybrid_sgm_p2 * margin, params=params, timer=timer,
                                 samples=samples, paths=params.hybrid_sgm_paths, row_fill=params.hybrid_row_fill,
-                                cost_max=abs(weight) + abs(1.0 - weight))
+                                cost_max=abs(weight) + abs(1.0 - weight), image=image)

@@ -11,13 +11,16 @@ from stereobudget.sampling import SamplingPattern
 from stereobudget.scenes import make_scene
 
 
-@pytest.mark.parametrize("radius, step, sigma_s, sigma_c", [(9, 3, 9.0, 10.0), (4, 1, 3.0, 25.0), (5, 2, 9.0, 2.0)])
-def test_kernel_equals_the_reference(radius, step, sigma_s, sigma_c):
-    rng = np.random.default_rng(radius * 7 + step)
+@pytest.mark.parametrize("radius, step, sigma_s, sigma_c, channels",
+                         [(9, 3, 9.0, 10.0, 3), (9, 3, 9.0, 10.0, 0), (4, 1, 3.0, 25.0, 1), (5, 2, 9.0, 2.0, 3)])
+def test_kernel_equals_the_reference(radius, step, sigma_s, sigma_c, channels):
+    rng = np.random.default_rng(radius * 7 + step + channels)
     disparity = rng.uniform(-3.0, 25.0, (37, 53)).astype(np.float32)
     disparity[rng.random(disparity.shape) < 0.02] = np.nan          # skipped where they sit in a window
     valid = rng.random(disparity.shape) < 0.6
-    guide = rng.uniform(0, 255, disparity.shape).astype(np.float32)
+    # A colour image, a one-channel one, or a grey (H, W) map.
+    shape = disparity.shape + ((channels,) if channels else ())
+    guide = rng.uniform(0, 255, shape).astype(np.float32)
     got = weighted_median_fill(disparity, valid, guide, radius=radius, step=step, sigma_s=sigma_s, sigma_c=sigma_c)
     expected = weighted_median_fill_reference(disparity, valid, guide, radius=radius, step=step, sigma_s=sigma_s,
                                               sigma_c=sigma_c)
@@ -40,6 +43,24 @@ def test_a_row_fill_streak_across_an_edge_takes_each_side_s_surface():
     streaked[10:30, 28:32] = 8.0
     filled = weighted_median_fill(streaked, valid, guide)
     np.testing.assert_array_equal(filled, truth)
+
+
+def test_colours_separate_surfaces_of_equal_grey():
+    # Red and green of the same grey level meet at column 30; the streak of the left
+    # surface's disparity into the right one is undone only by the colours.
+    h, w = 40, 60
+    truth = np.where(np.arange(w) < 30, 8.0, 14.0)[None, :].repeat(h, axis=0).astype(np.float32)
+    colours = np.zeros((h, w, 3), np.float32)
+    colours[:, :30] = (150.0, 60.0, 90.0)
+    colours[:, 30:] = (60.0, 150.0, 90.0)
+    valid = np.ones((h, w), bool)
+    valid[10:30, 28:32] = False
+    streaked = truth.copy()
+    streaked[10:30, 28:32] = 8.0
+    np.testing.assert_array_equal(weighted_median_fill(streaked, valid, colours), truth)
+    grey = colours.mean(axis=2)
+    assert np.ptp(grey) == 0
+    assert np.any(weighted_median_fill(streaked, valid, grey) != truth)
 
 
 def test_an_empty_or_all_valid_map_is_returned_as_is():
