@@ -169,11 +169,11 @@ class DecoderParams:
     rejected_median : bool
         After the row fill of the semi-global routes (the full pair and Hybrid's), give each
         pixel the left-right check rejected the weighted median of the filled map around it,
-        weighted by nearness and likeness in I1's colours (Rhemann et al. 2011, Hosni et al.
-        2013: radius 9, sigma_s 9, every third pixel; sigma_c 10 levels of the largest channel
-        difference;
-        :func:`stereobudget.aggregate.weighted_median_fill`): the row fill's streaks take the
-        disparity of the surface the pixel belongs to.  Measured with ``scripts/evaluate_real.py
+        weighted by nearness and likeness in I1's colours
+        (:func:`stereobudget.aggregate.weighted_median_fill`; Rhemann et al. 2011, Hosni et
+        al. 2013: radius 9, sigma_s 9, every third pixel; sigma_c 10 levels of the largest
+        channel difference): the row fill's streaks take the disparity of the surface the
+        pixel belongs to.  Measured with ``scripts/evaluate_real.py
         --param rejected_median=False`` against the default (mean bad > 1 px, Hybrid at stride
         5 / ``--epsilon 0.04`` / stride 3, then the full pair): see docs/results.md, "The
         rejected pixels' weighted median".

@@ -29,34 +29,35 @@ def test_kernel_equals_the_reference(radius, step, sigma_s, sigma_c, channels):
     assert np.count_nonzero(got[~valid] != disparity[~valid]) > 0
 
 
-def test_a_row_fill_streak_across_an_edge_takes_each_side_s_surface():
-    # Two surfaces meet at column 30: grey 60 at disparity 8 on the left, grey 190 at 14 on
-    # the right.  The check rejected a band across the edge, narrower than the window, and
-    # the row fill gave the whole band the left surface's disparity (a streak into the right
-    # surface).
+def _streak_across_an_edge():
+    """Two surfaces meeting at column 30, disparity 8 on the left and 14 on the right.  The
+    check rejected a band across the edge, narrower than the window, and the row fill gave
+    the whole band the left surface's disparity (a streak into the right surface).
+
+    Returns (truth, valid, streaked)."""
     h, w = 40, 60
     truth = np.where(np.arange(w) < 30, 8.0, 14.0)[None, :].repeat(h, axis=0).astype(np.float32)
-    guide = np.where(truth < 10, 60.0, 190.0).astype(np.float32)
     valid = np.ones((h, w), bool)
     valid[10:30, 28:32] = False
     streaked = truth.copy()
     streaked[10:30, 28:32] = 8.0
+    return truth, valid, streaked
+
+
+def test_a_row_fill_streak_across_an_edge_takes_each_side_s_surface():
+    # The left surface grey 60, the right one grey 190.
+    truth, valid, streaked = _streak_across_an_edge()
+    guide = np.where(truth < 10, 60.0, 190.0).astype(np.float32)
     filled = weighted_median_fill(streaked, valid, guide)
     np.testing.assert_array_equal(filled, truth)
 
 
 def test_colours_separate_surfaces_of_equal_grey():
-    # Red and green of the same grey level meet at column 30; the streak of the left
-    # surface's disparity into the right one is undone only by the colours.
-    h, w = 40, 60
-    truth = np.where(np.arange(w) < 30, 8.0, 14.0)[None, :].repeat(h, axis=0).astype(np.float32)
-    colours = np.zeros((h, w, 3), np.float32)
+    # Red and green of the same grey level meet at the edge; the streak is undone only by the colours.
+    truth, valid, streaked = _streak_across_an_edge()
+    colours = np.zeros(truth.shape + (3,), np.float32)
     colours[:, :30] = (150.0, 60.0, 90.0)
     colours[:, 30:] = (60.0, 150.0, 90.0)
-    valid = np.ones((h, w), bool)
-    valid[10:30, 28:32] = False
-    streaked = truth.copy()
-    streaked[10:30, 28:32] = 8.0
     np.testing.assert_array_equal(weighted_median_fill(streaked, valid, colours), truth)
     grey = colours.mean(axis=2)
     assert np.ptp(grey) == 0
